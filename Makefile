@@ -1,0 +1,41 @@
+# Everything a new user needs: `make demo` and `make test` build the virtualenv on first use.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+PKGS   := dbcslam_core dbcslam_ros sim_publisher
+
+.PHONY: venv test lint typecheck pytest demo experiments bench clean
+
+$(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py)
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --upgrade pip
+	$(BIN)/python -m pip install -r requirements.txt
+	$(BIN)/python -m pip install --no-deps $(foreach p,$(PKGS),-e $(p))
+	touch $@
+
+venv: $(STAMP)
+
+lint: venv
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: venv
+	$(BIN)/mypy
+
+pytest: venv
+	$(BIN)/pytest
+
+test: lint typecheck pytest
+
+demo: venv
+	$(BIN)/dbcslam demo
+
+experiments: venv
+	$(BIN)/python -m dbcslam_ros.experiments
+
+bench: venv
+	$(BIN)/python -m dbcslam_ros.bench
+
+clean:
+	rm -rf $(VENV) build ros_ws/build ros_ws/install ros_ws/log .mypy_cache .ruff_cache .pytest_cache

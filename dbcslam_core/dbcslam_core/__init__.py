@@ -1,0 +1,3 @@
+"""dbcslam_core package."""
+
+__all__: list[str] = []

@@ -1,0 +1,3 @@
+"""dbcslam_ros package."""
+
+__all__: list[str] = []

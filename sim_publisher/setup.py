@@ -1,0 +1,26 @@
+"""ament_python / pip packaging of sim_publisher (pybullet scenario simulator node)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "sim_publisher"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "tests"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=["setuptools", "numpy", "PyYAML", "pybullet"],
+    zip_safe=True,
+    maintainer="DBC-SLAM developers",
+    maintainer_email="dbcslam@example.org",
+    description="pybullet simulator node for DBC-SLAM scenarios.",
+    license="Apache-2.0",
+    python_requires=">=3.11",
+    entry_points={"console_scripts": []},
+)

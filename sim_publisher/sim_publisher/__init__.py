@@ -1,0 +1,3 @@
+"""sim_publisher package."""
+
+__all__: list[str] = []
