@@ -11,7 +11,8 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --upgrade pip
 	$(BIN)/python -m pip install -r requirements.txt
-	$(BIN)/python -m pip install --no-deps $(foreach p,$(PKGS),-e $(p))
+	# compat mode: a path entry, so `python -m pkg` from the repo root finds the real package
+	$(BIN)/python -m pip install --no-deps --config-settings editable_mode=compat $(foreach p,$(PKGS),-e $(p))
 	touch $@
 
 venv: $(STAMP)

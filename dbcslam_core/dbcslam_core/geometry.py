@@ -1,0 +1,304 @@
+"""Planar geometry: rotations, polygon mass properties and vectorised contact kinematics.
+
+Frames: `world` (REP-103, x-y plane, yaw about +z counter-clockwise). Body coordinates are
+about the centre of mass. Contact frame: normal n into the body's free side (from the
+obstacle towards the body), tangent t = (n_y, -n_x).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ModelError
+from .scenario import Disk, HalfSpace, Scenario
+
+__all__ = [
+    "ContactKinematics",
+    "contact_kinematics",
+    "cross2",
+    "polygon_area",
+    "polygon_centroid",
+    "polygon_inertia",
+    "rot",
+    "rotate",
+    "wrap_angle",
+]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+def rot(yaw: ArrayLike) -> F64:
+    """Rotation matrices R(yaw) of shape (..., 2, 2) (rad, counter-clockwise)."""
+    th = np.asarray(yaw, dtype=np.float64)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def rotate(yaw: ArrayLike, p: ArrayLike) -> F64:
+    """R(yaw) @ p for points p[..., 2], broadcasting yaw[...] against p[..., :]."""
+    th = np.asarray(yaw, dtype=np.float64)
+    pa = np.asarray(p, dtype=np.float64)
+    c, s = np.cos(th), np.sin(th)
+    x, y = pa[..., 0], pa[..., 1]
+    return np.stack([c * x - s * y, s * x + c * y], -1)
+
+
+def cross2(a: ArrayLike, b: ArrayLike) -> F64:
+    """Planar cross product a_x b_y - a_y b_x over the last axis (size 2)."""
+    aa = np.asarray(a, dtype=np.float64)
+    bb = np.asarray(b, dtype=np.float64)
+    return np.asarray(aa[..., 0] * bb[..., 1] - aa[..., 1] * bb[..., 0], dtype=np.float64)
+
+
+def wrap_angle(a: ArrayLike) -> F64:
+    """Angles wrapped to [-pi, pi)."""
+    return np.asarray((np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def _poly(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
+        msg = f"polygon needs vertices of shape (n >= 3, 2), got shape {v.shape}"
+        raise ModelError(msg)
+    return v
+
+
+def polygon_area(vertices: Sequence[Sequence[float]] | ArrayLike) -> float:
+    """Signed area (m^2, > 0 for counter-clockwise vertices) of a simple polygon."""
+    v = _poly(vertices)
+    return float(0.5 * np.sum(cross2(v, np.roll(v, -1, axis=0))))
+
+
+def polygon_centroid(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
+    """Centroid (m) of the uniform-density polygon area."""
+    v = _poly(vertices)
+    w = np.roll(v, -1, axis=0)
+    cr = cross2(v, w)
+    a = 0.5 * np.sum(cr)
+    if abs(a) < 1e-300:
+        msg = f"polygon has zero area: {v.tolist()}"
+        raise ModelError(msg)
+    return np.asarray(np.sum((v + w) * cr[:, None], axis=0) / (6.0 * a), dtype=np.float64)
+
+
+def polygon_inertia(
+    vertices: Sequence[Sequence[float]] | ArrayLike, mass: float, about_centroid: bool = False
+) -> float:
+    """Polar moment of inertia (kg m^2) of a uniform polygon of `mass` about the origin.
+
+    With `about_centroid` the moment is taken about the area centroid instead.
+    """
+    v = _poly(vertices)
+    if about_centroid:
+        v = v - polygon_centroid(v)
+    w = np.roll(v, -1, axis=0)
+    cr = cross2(v, w)
+    a = 0.5 * np.sum(cr)
+    j = np.sum(cr * (np.sum(v * v, 1) + np.sum(v * w, 1) + np.sum(w * w, 1))) / 12.0
+    return float(mass * j / a)
+
+
+@dataclass(frozen=True)
+class ContactKinematics:
+    """Contact geometry of every potential contact (C) at leading shape `...`.
+
+    phi[..., C]: signed gap (m, < 0 penetrating); Jn, Jt[..., C, nv]: normal / tangential
+    Jacobian rows (gap rate = Jn v - vn_env, relative tangential velocity = Jt v - vt_env);
+    vn_env, vt_env[..., C]: obstacle surface velocity along n / t (m/s); point[..., C, 2]:
+    world contact point on the body (m); s[..., C]: contact coordinate along the obstacle
+    tangent (half-space: t . point; disk: arc length along the body outline from vertex 0);
+    normal[..., C, 2]: the unit contact normal (world).
+    """
+
+    phi: F64
+    Jn: F64
+    Jt: F64
+    vn_env: F64
+    vt_env: F64
+    point: F64
+    s: F64
+    normal: F64
+
+
+@dataclass(frozen=True)
+class _Layout:
+    # half-space contacts
+    hs_idx: I64  # contact indices
+    hs_r: F64  # (H, 2) body-frame point
+    hs_n: F64  # (H, 2)
+    hs_off: F64  # (H,)
+    hs_sign: F64  # (H,)
+    hs_joint: I64  # (H,) joint index, -1 static
+    # disk contacts
+    dk_idx: I64
+    dk_radius: F64  # (D,)
+    dk_jx: I64  # (D,)
+    dk_jy: I64  # (D,)
+    verts: F64  # (V, 2) body polygon (CCW) or empty
+    perim0: F64  # (V,) arc length at each vertex
+
+
+@lru_cache(maxsize=64)
+def _layout(scenario: Scenario) -> _Layout:
+    joints = scenario.joints
+    obst = scenario.obstacles
+    verts = np.asarray(scenario.body.vertices, dtype=np.float64).reshape(-1, 2)
+    hs: list[tuple[int, tuple[float, float], tuple[float, float], float, float, int]] = []
+    dk: list[tuple[int, float, int, int]] = []
+    for c, pc in enumerate(scenario.potential_contacts):
+        o = obst[pc.obstacle]
+        if isinstance(o, HalfSpace):
+            r = (0.0, 0.0) if pc.feature == "origin" else tuple(verts[pc.vertex])
+            j = -1 if o.joint is None else joints.index(o.joint)
+            hs.append((c, (float(r[0]), float(r[1])), o.normal, o.offset, o.sign, j))
+        elif isinstance(o, Disk):
+            dk.append((c, o.radius, joints.index(o.joint_x), joints.index(o.joint_y)))
+    perim0 = np.zeros(len(verts))
+    if len(verts):
+        seg = np.linalg.norm(np.roll(verts, -1, 0) - verts, axis=1)
+        perim0 = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    return _Layout(
+        hs_idx=np.array([h[0] for h in hs], dtype=np.int64),
+        hs_r=np.array([h[1] for h in hs], dtype=np.float64).reshape(-1, 2),
+        hs_n=np.array([h[2] for h in hs], dtype=np.float64).reshape(-1, 2),
+        hs_off=np.array([h[3] for h in hs], dtype=np.float64),
+        hs_sign=np.array([h[4] for h in hs], dtype=np.float64),
+        hs_joint=np.array([h[5] for h in hs], dtype=np.int64),
+        dk_idx=np.array([d[0] for d in dk], dtype=np.int64),
+        dk_radius=np.array([d[1] for d in dk], dtype=np.float64),
+        dk_jx=np.array([d[2] for d in dk], dtype=np.int64),
+        dk_jy=np.array([d[3] for d in dk], dtype=np.int64),
+        verts=verts,
+        perim0=perim0,
+    )
+
+
+def _joint_values(env: F64, jidx: NDArray[np.int64]) -> F64:
+    """env[..., j] for each j (0 where j < 0)."""
+    if env.shape[-1] == 0:
+        return np.zeros((*env.shape[:-1], len(jidx)))
+    vals = env[..., np.maximum(jidx, 0)]
+    return np.where(jidx >= 0, vals, 0.0)
+
+
+def contact_kinematics(
+    scenario: Scenario,
+    q: ArrayLike,
+    env: ArrayLike | None = None,
+    env_vel: ArrayLike | None = None,
+) -> ContactKinematics:
+    """Contact kinematics of all potential contacts, broadcasting over leading axes.
+
+    q[..., nq] (x, y[, yaw]) in m, rad; env[..., E] joint positions (m) in the order of
+    `scenario.joints`; env_vel[..., E] joint velocities (m/s). E may be 0 (edge scenario);
+    env/env_vel default to zeros. Returns `ContactKinematics` with leading shape the
+    broadcast of the three leading shapes.
+    """
+    nq = scenario.nq
+    n_env = len(scenario.joints)
+    qa = np.asarray(q, dtype=np.float64)
+    if qa.ndim < 1 or qa.shape[-1] != nq:
+        msg = f"q must have shape (..., {nq}) for scenario '{scenario.kind}', got {qa.shape}"
+        raise ModelError(msg)
+    ea = np.zeros(n_env) if env is None else np.asarray(env, dtype=np.float64)
+    ev = np.zeros(n_env) if env_vel is None else np.asarray(env_vel, dtype=np.float64)
+    for name, arr in (("env", ea), ("env_vel", ev)):
+        if arr.ndim < 1 or arr.shape[-1] != n_env:
+            msg = (
+                f"{name} must have shape (..., {n_env}) (joints {list(scenario.joints)}), got "
+                f"{arr.shape}"
+            )
+            raise ModelError(msg)
+    lead = np.broadcast_shapes(qa.shape[:-1], ea.shape[:-1], ev.shape[:-1])
+    qa = np.broadcast_to(qa, (*lead, nq))
+    ea = np.broadcast_to(ea, (*lead, n_env))
+    ev = np.broadcast_to(ev, (*lead, n_env))
+    lay = _layout(scenario)
+    n_c = scenario.n_contacts
+    phi = np.empty((*lead, n_c))
+    jn = np.zeros((*lead, n_c, nq))
+    jt = np.zeros((*lead, n_c, nq))
+    vn_env = np.zeros((*lead, n_c))
+    vt_env = np.zeros((*lead, n_c))
+    point = np.empty((*lead, n_c, 2))
+    s = np.empty((*lead, n_c))
+    normal = np.empty((*lead, n_c, 2))
+    pos = qa[..., None, 0:2]  # (..., 1, 2)
+    yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
+
+    if len(lay.hs_idx):
+        idx = lay.hs_idx
+        jidx = lay.hs_joint
+        r_w = rotate(yaw[..., None], lay.hs_r)  # (..., H, 2)
+        p = pos + r_w
+        n = lay.hs_n
+        t = np.stack([n[:, 1], -n[:, 0]], -1)
+        d = lay.hs_off + lay.hs_sign * _joint_values(ea, jidx)
+        phi[..., idx] = np.sum(p * n, -1) - d
+        jn[..., idx, 0] = n[:, 0]
+        jn[..., idx, 1] = n[:, 1]
+        jt[..., idx, 0] = t[:, 0]
+        jt[..., idx, 1] = t[:, 1]
+        if nq == 3:
+            jn[..., idx, 2] = cross2(r_w, n)
+            jt[..., idx, 2] = cross2(r_w, t)
+        vn_env[..., idx] = lay.hs_sign * _joint_values(ev, jidx)
+        point[..., idx, :] = p
+        s[..., idx] = np.sum(p * t, -1)
+        normal[..., idx, :] = np.broadcast_to(n, p.shape)
+
+    if len(lay.dk_idx):
+        idx = lay.dk_idx
+        jx = lay.dk_jx
+        jy = lay.dk_jy
+        centre = np.stack([ea[..., jx], ea[..., jy]], -1)  # (..., D, 2)
+        cvel = np.stack([ev[..., jx], ev[..., jy]], -1)
+        # centre in the body frame
+        c_b = rotate(-yaw[..., None], centre - pos)  # (..., D, 2)
+        v = lay.verts  # (V, 2)
+        w = np.roll(v, -1, 0)
+        e = w - v  # (V, 2)
+        elen2 = np.sum(e * e, -1)
+        rel = c_b[..., None, :] - v  # (..., D, V, 2)
+        tt = np.clip(np.sum(rel * e, -1) / elen2, 0.0, 1.0)  # (..., D, V)
+        cp = v + tt[..., None] * e  # closest point on each edge
+        diff = c_b[..., None, :] - cp
+        dist2 = np.sum(diff * diff, -1)
+        k = np.argmin(dist2, -1)  # (..., D)
+        cp_k = np.take_along_axis(cp, k[..., None, None], -2)[..., 0, :]
+        dist = np.sqrt(np.take_along_axis(dist2, k[..., None], -1)[..., 0])
+        inside = np.all(cross2(e, rel) >= 0.0, -1)  # CCW polygon
+        out_n = np.stack([e[:, 1], -e[:, 0]], -1) / np.sqrt(elen2)[:, None]  # outward normals
+        edge_out = out_n[k]  # (..., D, 2)
+        tiny = dist < 1e-12
+        safe = np.where(tiny, 1.0, dist)[..., None]
+        # normal (body frame) from the pusher towards the body
+        n_b = np.where(
+            tiny[..., None],
+            -edge_out,
+            np.where(inside[..., None], 1.0, -1.0) * (c_b - cp_k) / safe,
+        )
+        sd = np.where(inside, -dist, dist)
+        r_w = rotate(yaw[..., None], cp_k)
+        n_w = rotate(yaw[..., None], n_b)
+        t_w = np.stack([n_w[..., 1], -n_w[..., 0]], -1)
+        phi[..., idx] = sd - lay.dk_radius
+        jn[..., idx, 0] = n_w[..., 0]
+        jn[..., idx, 1] = n_w[..., 1]
+        jt[..., idx, 0] = t_w[..., 0]
+        jt[..., idx, 1] = t_w[..., 1]
+        jn[..., idx, 2] = cross2(r_w, n_w)
+        jt[..., idx, 2] = cross2(r_w, t_w)
+        vn_env[..., idx] = np.sum(cvel * n_w, -1)
+        vt_env[..., idx] = np.sum(cvel * t_w, -1)
+        point[..., idx, :] = pos + r_w
+        ttk = np.take_along_axis(tt, k[..., None], -1)[..., 0]
+        s[..., idx] = lay.perim0[k] + ttk * np.sqrt(elen2)[k]
+        normal[..., idx, :] = n_w
+    return ContactKinematics(phi, jn, jt, vn_env, vt_env, point, s, normal)

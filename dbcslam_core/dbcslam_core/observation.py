@@ -1,0 +1,254 @@
+"""Observation models p(o | x) (Sec. III-B) and the closed-form optimal proposal.
+
+The filter observes a subset of the generalised coordinates with independent Gaussian noise:
+a planar pose (x, y[, yaw]) in frame `world` (m, m, rad). For a point mass only (x, y) exist;
+a yaw reading is then rejected. Angular residuals are wrapped to [-pi, pi).
+
+Proposal (DESIGN.md, Estimator step 4): with velocity process noise e_v ~ N(0, sig_v^2) and
+position process noise e_q ~ N(0, sig_q^2) (diagonal), v' = v'_h + e_v and
+q' = q + dt v' + e_q, an observation o_d = q'_d + r_d, r_d ~ N(0, R_d), gives per observed
+dimension (independent because everything is diagonal)
+
+    predictive   o_d | h ~ N(q_d + dt v'_hd, S_d),  S_d = dt^2 sig_vd^2 + sig_qd^2 + R_d
+    posterior    e_vd | o, h ~ N(dt sig_vd^2 y_d / S_d, sig_vd^2 (1 - dt^2 sig_vd^2 / S_d))
+                 e_qd | e_vd, o ~ N(g_d (y_d - dt e_vd), sig_qd^2 R_d / (sig_qd^2 + R_d)),
+                 g_d = sig_qd^2 / (sig_qd^2 + R_d),
+
+y_d the (wrapped) innovation. Unobserved dimensions keep the prior.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from dbcslam_core.errors import ModelError
+
+__all__ = [
+    "JointSmoother",
+    "LinearObservation",
+    "PoseObservation",
+    "PoseObservationModel",
+    "ProposalTerms",
+    "proposal_terms",
+    "sample_noise",
+    "wrap_angle",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def wrap_angle(a: npt.ArrayLike) -> FloatArray:
+    """Wrap angles (rad) to [-pi, pi)."""
+    x = np.asarray(a, dtype=np.float64)
+    return np.asarray((x + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class PoseObservation:
+    """Observed planar pose in `world`: x, y (m), optional yaw (rad, counter-clockwise)."""
+
+    x: float
+    y: float
+    yaw: float | None = None
+
+
+@dataclass(frozen=True)
+class LinearObservation:
+    """o = q[index] + r with r ~ N(0, diag(var)); `angular` marks dims wrapped to [-pi, pi)."""
+
+    index: IntArray
+    value: FloatArray
+    var: FloatArray
+    angular: BoolArray
+
+    def residual(self, q_obs: npt.ArrayLike) -> FloatArray:
+        """Innovation o - q[..., index] (angular dims wrapped), shape (..., D)."""
+        r = self.value - np.asarray(q_obs, dtype=np.float64)
+        return np.asarray(np.where(self.angular, wrap_angle(r), r), dtype=np.float64)
+
+    def log_likelihood(self, q: npt.ArrayLike) -> FloatArray:
+        """log p(o | q) for q (..., nq)."""
+        qa = np.asarray(q, dtype=np.float64)
+        r = self.residual(qa[..., self.index])
+        ll = -0.5 * (r * r / self.var + np.log(self.var) + _LOG_2PI)
+        return np.asarray(ll.sum(axis=-1), dtype=np.float64)
+
+
+class PoseObservationModel:
+    """Pose sensor with independent Gaussian noise: std_position (m) on x and y, std_yaw
+    (rad) on yaw (polygon bodies only, nq = 3)."""
+
+    def __init__(self, nq: int, std_position: float, std_yaw: float = 0.0) -> None:
+        if nq not in (2, 3):
+            msg = f"nq must be 2 (point mass) or 3 (polygon), got {nq}"
+            raise ModelError(msg)
+        if not (math.isfinite(std_position) and std_position > 0.0):
+            msg = f"position noise std must be > 0 m, got {std_position}"
+            raise ModelError(msg)
+        if nq == 3 and not (math.isfinite(std_yaw) and std_yaw > 0.0):
+            msg = f"yaw noise std must be > 0 rad for a polygon body, got {std_yaw}"
+            raise ModelError(msg)
+        self.nq = nq
+        self.std_position = float(std_position)
+        self.std_yaw = float(std_yaw)
+
+    def linearize(self, obs: PoseObservation) -> LinearObservation:
+        """The observation as o = q[index] + r (validates finiteness)."""
+        vals = [obs.x, obs.y]
+        if obs.yaw is not None:
+            if self.nq == 2:
+                msg = f"a point mass has no yaw, but the observation carries yaw={obs.yaw}"
+                raise ModelError(msg)
+            vals.append(obs.yaw)
+        if not all(math.isfinite(v) for v in vals):
+            msg = f"observation must be finite, got {obs}"
+            raise ModelError(msg)
+        n = len(vals)
+        var = [self.std_position**2] * 2 + [self.std_yaw**2] * (n - 2)
+        return LinearObservation(
+            index=np.arange(n, dtype=np.int64),
+            value=np.asarray(vals, dtype=np.float64),
+            var=np.asarray(var, dtype=np.float64),
+            angular=np.asarray([False, False, True][:n], dtype=np.bool_),
+        )
+
+
+@dataclass(frozen=True)
+class ProposalTerms:
+    """Closed-form optimal-proposal terms for a batch of hypotheses.
+
+    log_pred (...): log p(o | h) of each hypothesis. The posterior of the velocity noise e_v
+    given o and h is N(v_mean, v_std^2) (per dimension); given a sampled e_v, the position
+    noise e_q is N(q_gain * (innovation - dt e_v), q_std^2) on observed dimensions
+    (see `sample_noise`). innovation (..., nq) is zero on unobserved dimensions.
+    """
+
+    log_pred: FloatArray
+    innovation: FloatArray
+    v_mean: FloatArray
+    v_std: FloatArray
+    q_gain: FloatArray
+    q_std: FloatArray
+    observed: BoolArray
+
+
+def proposal_terms(
+    q: npt.ArrayLike,
+    v_next: npt.ArrayLike,
+    dt: float,
+    sigma_v: npt.ArrayLike,
+    obs: LinearObservation | None,
+    sigma_q: npt.ArrayLike | None = None,
+) -> ProposalTerms:
+    """Optimal proposal for v' = v_next + e_v, q' = q + dt v' + e_q (module docstring).
+
+    q (..., nq) broadcastable against v_next (..., nv) (nv == nq); sigma_v (nv,) velocity
+    noise std (m/s, rad/s); sigma_q (nq,) position noise std per step (m, rad; default 0).
+    With obs None: log_pred = 0 and the prior noise.
+    """
+    qa = np.asarray(q, dtype=np.float64)
+    vn = np.asarray(v_next, dtype=np.float64)
+    sv = np.asarray(sigma_v, dtype=np.float64)
+    sq = np.zeros_like(sv) if sigma_q is None else np.asarray(sigma_q, dtype=np.float64)
+    lead = np.broadcast_shapes(qa.shape[:-1], vn.shape[:-1])
+    nq = sv.size
+    innov = np.zeros((*lead, nq))
+    v_mean = np.zeros((*lead, nq))
+    v_std = sv.copy()
+    q_gain = np.zeros(nq)
+    q_std = sq.copy()
+    observed = np.zeros(nq, dtype=np.bool_)
+    if obs is None:
+        return ProposalTerms(np.zeros(lead), innov, v_mean, v_std, q_gain, q_std, observed)
+    idx = obs.index
+    observed[idx] = True
+    s = dt * dt * sv[idx] ** 2 + sq[idx] ** 2 + obs.var
+    pred = qa[..., idx] + dt * vn[..., idx]
+    y = obs.residual(pred)
+    innov[..., idx] = y
+    log_pred = -0.5 * np.sum(y * y / s + np.log(s) + _LOG_2PI, axis=-1)
+    v_mean[..., idx] = (dt * sv[idx] ** 2 / s) * y
+    v_std[idx] = np.sqrt(sv[idx] ** 2 * (1.0 - dt * dt * sv[idx] ** 2 / s))
+    r_q = sq[idx] ** 2 + obs.var
+    q_gain[idx] = sq[idx] ** 2 / r_q
+    q_std[idx] = np.sqrt(sq[idx] ** 2 * obs.var / r_q)
+    return ProposalTerms(
+        np.asarray(log_pred, dtype=np.float64), innov, v_mean, v_std, q_gain, q_std, observed
+    )
+
+
+def sample_noise(
+    terms: ProposalTerms,
+    innovation: npt.ArrayLike,
+    v_mean: npt.ArrayLike,
+    dt: float,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """Draw (e_v, e_q) (N, nq) from the optimal proposal of the chosen hypotheses.
+
+    innovation, v_mean (N, nq): rows of terms.innovation / terms.v_mean at the chosen
+    hypotheses. e_v ~ N(v_mean, v_std^2); then e_q | e_v ~ N(q_gain (y - dt e_v), q_std^2)
+    on observed dimensions and N(0, q_std^2) elsewhere (exact chain rule of the joint
+    Gaussian posterior).
+    """
+    y = np.asarray(innovation, dtype=np.float64)
+    vm = np.asarray(v_mean, dtype=np.float64)
+    e_v = vm + terms.v_std * rng.standard_normal(vm.shape)
+    q_mean = np.where(terms.observed, terms.q_gain * (y - dt * e_v), 0.0)
+    e_q = q_mean + terms.q_std * rng.standard_normal(vm.shape)
+    return np.asarray(e_v, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
+
+
+class JointSmoother:
+    """Constant-velocity Kalman filter per joint for noisy joint readings (m).
+
+    Position-controlled joints (gripper jaws, pusher) enter the contact model as known inputs:
+    their positions at the start and end of each step define the obstacle position and velocity.
+    Raw readings with std `noise` would turn into velocity noise of ~noise * sqrt(2) / dt, which
+    the contact equalities would transmit as spurious impulses; this filter (white acceleration
+    noise `accel_std`, m/s^2) returns smoothed positions. noise == 0 passes readings through.
+    """
+
+    def __init__(self, n_joints: int, dt: float, noise: float, accel_std: float = 1.0) -> None:
+        self.n = n_joints
+        self.dt = float(dt)
+        self.r = float(noise) ** 2
+        self.q_a = float(accel_std) ** 2
+        self.x = np.zeros((n_joints, 2))
+        self.p = np.zeros((n_joints, 2, 2))
+        self.initialised = False
+
+    def reset(self, position: npt.ArrayLike) -> FloatArray:
+        """Start from a reading (velocity unknown: std 1 m/s). Returns the position."""
+        pos = np.asarray(position, dtype=np.float64).reshape(self.n)
+        self.x = np.stack([pos, np.zeros(self.n)], -1)
+        self.p = np.zeros((self.n, 2, 2))
+        self.p[:, 0, 0] = self.r
+        self.p[:, 1, 1] = 1.0
+        self.initialised = True
+        return np.asarray(self.x[:, 0].copy(), dtype=np.float64)
+
+    def update(self, position: npt.ArrayLike) -> FloatArray:
+        """Predict one step dt and update with a reading; returns the smoothed positions."""
+        pos = np.asarray(position, dtype=np.float64).reshape(self.n)
+        if self.r <= 0.0 or not self.initialised:
+            return self.reset(pos)
+        dt = self.dt
+        f = np.array([[1.0, dt], [0.0, 1.0]])
+        qm = self.q_a * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+        x = self.x @ f.T
+        p = f @ self.p @ f.T + qm
+        s = p[:, 0, 0] + self.r
+        k = p[:, :, 0] / s[:, None]
+        x = x + k * (pos - x[:, 0])[:, None]
+        p = p - k[:, :, None] * p[:, None, 0, :]
+        self.x, self.p = x, p
+        return np.asarray(x[:, 0].copy(), dtype=np.float64)

@@ -1,0 +1,667 @@
+"""DBC-SLAM: the Rao-Blackwellized particle filter (Sec. III-B to III-D of the paper).
+
+Per particle i the continuous state (q_i, v_i) is sampled; the discrete state is kept in closed
+form: the friction belief ``fric[i, b]`` over the B joint friction hypotheses (one candidate per
+pair, C-order of ``np.indices``) and per-contact mode marginals ``modes[i, b, c, m]`` conditioned
+on b. Within a step, joint mode hypotheses are enumerated exactly (pruned); between steps the
+joint mode posterior is projected onto per-contact marginals (Boyen-Koller). See DESIGN.md,
+section "Estimator", for the step-by-step algorithm. Everything is vectorised over (particles,
+hypotheses, friction); there is no Python loop over particles.
+
+Frames and units: world frame `world` (REP-103), SI units; poses (x, y[, yaw]) of the body's
+centre of mass; twists (vx, vy[, omega]) in the world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from dbcslam_core.contact_modes import (
+    N_MODES,
+    ContactLayout,
+    Mode,
+    ViolationScales,
+    enumerate_hypotheses,
+    solve_reduced,
+)
+from dbcslam_core.dynamics import PlanarModel
+from dbcslam_core.errors import ModelError
+from dbcslam_core.extensions import ModelExtension
+from dbcslam_core.geometry import contact_kinematics
+from dbcslam_core.observation import (
+    JointSmoother,
+    LinearObservation,
+    PoseObservation,
+    PoseObservationModel,
+    proposal_terms,
+    sample_noise,
+    wrap_angle,
+)
+from dbcslam_core.parameters import (
+    PARAMETER_MODELS,
+    FrictionMap,
+    FrictionMapView,
+    predict_parameters,
+)
+from dbcslam_core.resampling import (
+    RESAMPLERS,
+    effective_sample_size,
+    make_resampler,
+    normalise_log_weights,
+)
+from dbcslam_core.scenario import Scenario
+from dbcslam_core.transition import TransitionParams, mode_transition, soft_modes
+
+__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Configuration of `DbcSlamFilter` (SI units).
+
+    particles: number of particles P. ess_threshold: resample when ESS < ess_threshold * P.
+    prune_threshold: per-contact modes and normalised joint hypotheses below this probability
+    are pruned. max_hypotheses: cap of joint mode hypotheses per particle.
+    parameter_model / contact_weight / free_weight: eq. (7) form and its weight w on the
+    posterior (w = free_weight + (contact_weight - free_weight) * P(pair in contact)).
+    process_noise: std of the velocity noise per step for (vx, vy, omega) (m/s, m/s, rad/s);
+    a point mass uses the first two. position_noise: std of an additional position noise per
+    step (m, m, rad). warmup_steps / warmup_boost: during the first warmup_steps steps the
+    process noise is inflated by a factor decaying linearly from 1 + warmup_boost to 1 (the
+    initial velocity is unobserved; this lets the cloud lock onto it). violation_impulse (dimensionless, relative to the contact's
+    impulse magnitude) and violation_velocity (m/s): scales of the inequality violations of
+    the reduced dynamics (contact_modes.ViolationScales). resampler: key of RESAMPLERS. frozen_friction:
+    candidate index used for every pair (fixed-friction filter) or None to estimate friction.
+    init_*: initial spread around the first observation (None = the observation noise).
+    map_range (m), map_cell (m): the grid of the friction map over the contact coordinate s;
+    map_lag: fixed lag (steps) of the smoothed friction committed to the map.
+    joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint readings.
+    """
+
+    particles: int = 500
+    ess_threshold: float = 0.5
+    prune_threshold: float = 1e-3
+    max_hypotheses: int = 32
+    parameter_model: str = "mixture"
+    contact_weight: float = 0.98
+    free_weight: float = 0.0
+    process_noise: tuple[float, float, float] = (0.01, 0.01, 0.5)
+    position_noise: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
+    warmup_steps: int = 30
+    warmup_boost: float = 10.0
+    transition: TransitionParams = field(default_factory=TransitionParams)
+    violation_impulse: float = 0.02
+    violation_velocity: float = 0.01
+    resampler: str = "systematic"
+    frozen_friction: int | None = None
+    init_position_std: float | None = None
+    init_yaw_std: float | None = None
+    init_velocity_std: tuple[float, float, float] = (1.0, 1.0, 3.0)
+    map_range: tuple[float, float] = (-2.0, 2.0)
+    map_cell: float = 0.02
+    map_lag: int = 20
+    joint_accel_std: float = 0.3
+
+    def __post_init__(self) -> None:
+        if self.particles < 1:
+            msg = f"particles must be >= 1, got {self.particles}"
+            raise ModelError(msg)
+        if not 0.0 <= self.ess_threshold <= 1.0:
+            msg = f"ess_threshold must be in [0, 1] (fraction of particles), got {self.ess_threshold}"
+            raise ModelError(msg)
+        if not 0.0 <= self.prune_threshold < 1.0:
+            msg = f"prune_threshold must be in [0, 1), got {self.prune_threshold}"
+            raise ModelError(msg)
+        if self.max_hypotheses < 1:
+            msg = f"max_hypotheses must be >= 1, got {self.max_hypotheses}"
+            raise ModelError(msg)
+        if self.parameter_model not in PARAMETER_MODELS:
+            msg = (
+                f"parameter_model must be one of {list(PARAMETER_MODELS)}, got "
+                f"{self.parameter_model!r}"
+            )
+            raise ModelError(msg)
+        for name in ("contact_weight", "free_weight"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                msg = f"{name} must be in [0, 1], got {getattr(self, name)}"
+                raise ModelError(msg)
+        if len(self.process_noise) != 3 or any(s <= 0.0 for s in self.process_noise):
+            msg = f"process_noise needs 3 stds > 0 (vx, vy, omega), got {self.process_noise}"
+            raise ModelError(msg)
+        if self.resampler not in RESAMPLERS:
+            msg = f"resampler must be one of {sorted(RESAMPLERS)}, got {self.resampler!r}"
+            raise ModelError(msg)
+        if self.map_lag < 0:
+            msg = f"map_lag must be >= 0, got {self.map_lag}"
+            raise ModelError(msg)
+
+    @classmethod
+    def preset(cls, kind: str, **overrides: Any) -> FilterConfig:
+        """Tuned configuration for a scenario kind (`edge`, `gripper`, `push`).
+
+        edge: friction varies along the edge -> eq. (7) mixture, prior mixed back in while in
+        contact and fully out of contact. gripper / push: one time-invariant coefficient ->
+        `reuse` (the belief accumulates over the whole grasp).
+        """
+        base: dict[str, Any]
+        if kind == "edge":
+            base = {
+                "parameter_model": "mixture",
+                "contact_weight": 0.98,
+                "free_weight": 0.0,
+                "map_range": (-1.0, 3.0),
+            }
+        elif kind in ("gripper", "push"):
+            base = {
+                "parameter_model": "mixture",
+                "contact_weight": 0.999,
+                "free_weight": 1.0,
+                "map_range": (-0.2, 0.2),
+                "map_cell": 0.005,
+            }
+        else:
+            msg = f"no preset for scenario kind {kind!r}; valid kinds are edge, gripper, push"
+            raise ModelError(msg)
+        base.update(overrides)
+        return cls(**base)
+
+
+@dataclass(frozen=True)
+class FilterInput:
+    """Known inputs of one filter step.
+
+    wrench: applied force/moment at the centre of mass, world frame: (fx, fy[, tau]) (N, N m),
+    acting during the step. joints: joint positions (m) in `scenario.joints` order at the END
+    of the step (the time of the step's observation); the filter remembers the previous ones
+    (joints at the start of the step). joints_start overrides those remembered start positions.
+    """
+
+    wrench: tuple[float, ...] = (0.0, 0.0, 0.0)
+    joints: tuple[float, ...] = ()
+    joints_start: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Filter output of one step.
+
+    pose (3,): weighted mean (x, y, yaw) (m, m, rad; yaw circular mean). A point mass has no
+    orientation: yaw = 0 with zero variance (row/column 2 of pose_cov are 0).
+    pose_cov (3, 3); twist (3,) = (vx, vy, omega) and twist_cov (3, 3), same convention.
+    modes (C, 4): P(mode) per potential contact, order separated, sticking, sliding_pos,
+    sliding_neg. friction (pairs, Kmax): posterior over each pair's candidates (zero-padded).
+    friction_map: the spatial friction map. ess: effective sample size before resampling.
+    live_hypotheses: mean number of live joint mode hypotheses per particle.
+    log_likelihood: log p(o_l | o_{0:l-1}) (0 without observation). resampled: whether the
+    particles were resampled in this step. step: step counter (1 for the first step).
+    """
+
+    step: int
+    pose: FloatArray
+    pose_cov: FloatArray
+    twist: FloatArray
+    twist_cov: FloatArray
+    modes: FloatArray
+    friction: FloatArray
+    friction_map: FrictionMapView
+    ess: float
+    live_hypotheses: float
+    log_likelihood: float
+    resampled: bool
+
+
+def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    with np.errstate(divide="ignore"):
+        out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
+    return np.asarray(np.squeeze(out, axis=axis), dtype=np.float64)
+
+
+class DbcSlamFilter:
+    """Online DBC-SLAM filter: `step(observation, inputs) -> Estimate`.
+
+    scenario: the a-priori model (`/scenario`); config: `FilterConfig`; rng: the only source of
+    randomness; extensions: optional model extensions (force / mass / gain hooks) of the
+    dynamics. The filter initialises itself from the first observation unless `initialize`
+    was called.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        config: FilterConfig | None = None,
+        rng: np.random.Generator | None = None,
+        extensions: tuple[ModelExtension, ...] = (),
+    ) -> None:
+        self.scenario = scenario
+        self.config = config or FilterConfig()
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.model = PlanarModel(scenario, extensions)
+        cfg = self.config
+        self.nq = scenario.nq
+        self.n_c = scenario.n_contacts
+        self.dt = scenario.dt
+        self._inv_mass = 1.0 / self.model.mass_diag
+        self._sigma_v = np.asarray(cfg.process_noise[: self.nq], dtype=np.float64)
+        self._sigma_q = np.asarray(cfg.position_noise[: self.nq], dtype=np.float64)
+        self._obs_model = PoseObservationModel(
+            self.nq, scenario.noise.position, scenario.noise.yaw if self.nq == 3 else 0.0
+        )
+        pcs = scenario.potential_contacts
+        self._layout = ContactLayout(
+            feature_vertex=tuple(c.vertex for c in pcs),
+            obstacle=tuple(c.obstacle for c in pcs),
+            n_vertices=len(scenario.body.vertices),
+        )
+        self._contact_pair = np.asarray(scenario.contact_pairs, dtype=np.int64)
+        fr = scenario.friction
+        self.n_pairs = len(fr.pairs)
+        self._n_cand = [len(c) for c in fr.candidates]
+        self._k_max = max(self._n_cand)
+        if cfg.frozen_friction is not None:
+            for p, n in enumerate(self._n_cand):
+                if not 0 <= cfg.frozen_friction < n:
+                    msg = (
+                        f"frozen_friction index {cfg.frozen_friction} out of range for pair "
+                        f"{fr.pairs[p]!r} with candidates {list(fr.candidates[p])}"
+                    )
+                    raise ModelError(msg)
+            beta = np.full((1, self.n_pairs), cfg.frozen_friction, dtype=np.int64)
+        else:
+            beta = np.indices(self._n_cand).reshape(self.n_pairs, -1).T.astype(np.int64)
+        self._beta = beta  # (B, pairs) candidate index per pair
+        self.n_b = beta.shape[0]
+        cand = [np.asarray(c, dtype=np.float64) for c in fr.candidates]
+        self._mu = np.stack(
+            [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
+        )  # (B, C)
+        self._prior_pair = [np.asarray(p, dtype=np.float64) for p in fr.prior]
+        if cfg.frozen_friction is not None:
+            self._prior_b = np.ones(1)
+        else:
+            pri = np.ones(self.n_b)
+            for p in range(self.n_pairs):
+                pri = pri * self._prior_pair[p][beta[:, p]]
+            self._prior_b = pri / pri.sum()
+        self._scales = ViolationScales(
+            impulse=cfg.violation_impulse,
+            velocity=cfg.violation_velocity,
+            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
+        )
+        self._resampler = make_resampler(cfg.resampler)
+        self.map = FrictionMap(fr.prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
+        self._initialised = False
+        self._step = 0
+        self._joints_prev: FloatArray | None = None
+        self._joint_filter = JointSmoother(
+            len(scenario.joints), self.dt, scenario.noise.joint, cfg.joint_accel_std
+        )
+        self.q = np.zeros((cfg.particles, self.nq))
+        self.v = np.zeros((cfg.particles, self.nq))
+        self.log_w = np.zeros(cfg.particles)
+        self.fric = np.tile(self._prior_b, (cfg.particles, 1))
+        self.modes = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
+        self.modes[..., Mode.SEPARATED] = 1.0
+        self._hist: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+
+    # ------------------------------------------------------------------ initialisation
+    def initialize(
+        self,
+        q_mean: npt.ArrayLike,
+        q_std: npt.ArrayLike,
+        v_mean: npt.ArrayLike | None = None,
+        v_std: npt.ArrayLike | None = None,
+        joints: npt.ArrayLike | None = None,
+    ) -> None:
+        """Draw the initial particles: q ~ N(q_mean, diag(q_std^2)), v ~ N(v_mean, v_std^2).
+
+        joints: joint positions (m) at the initial time. Mode marginals start from the softened
+        NCP checks of the initial state; friction from the prior.
+        """
+        p = self.config.particles
+        qm = np.asarray(q_mean, dtype=np.float64).reshape(self.nq)
+        qs = np.broadcast_to(np.asarray(q_std, dtype=np.float64), (self.nq,))
+        vm = np.zeros(self.nq) if v_mean is None else np.asarray(v_mean, dtype=np.float64)
+        vs = (
+            np.asarray(self.config.init_velocity_std[: self.nq])
+            if v_std is None
+            else np.broadcast_to(np.asarray(v_std, dtype=np.float64), (self.nq,))
+        )
+        self.q = qm + qs * self.rng.standard_normal((p, self.nq))
+        self.v = vm + vs * self.rng.standard_normal((p, self.nq))
+        if self.nq == 3:
+            self.q[:, 2] = wrap_angle(self.q[:, 2])
+        self.log_w = np.zeros(p)
+        self.fric = np.tile(self._prior_b, (p, 1))
+        if joints is not None:
+            self._joints_prev = self._joint_filter.reset(joints)
+        env = self._joints_prev if self._joints_prev is not None else None
+        kin = contact_kinematics(self.scenario, self.q, env, None)
+        an = np.einsum("pcv,pv->pc", kin.Jn, self.v) - kin.vn_env
+        at = np.einsum("pcv,pv->pc", kin.Jt, self.v) - kin.vt_env
+        soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
+        self.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
+        self._hist = []
+        self._initialised = True
+
+    def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
+        if lin is None:
+            msg = "the filter needs an observation (or initialize()) before its first step"
+            raise ModelError(msg)
+        cfg = self.config
+        qm = np.zeros(self.nq)
+        qs = np.full(self.nq, math.pi)
+        qm[lin.index] = lin.value
+        qs[lin.index] = np.sqrt(lin.var)
+        if cfg.init_position_std is not None:
+            qs[:2] = cfg.init_position_std
+        if self.nq == 3 and cfg.init_yaw_std is not None:
+            qs[2] = cfg.init_yaw_std
+        self.initialize(qm, qs, joints=joints)
+
+    # ------------------------------------------------------------------------ the step
+    def step(self, observation: PoseObservation | None, inputs: FilterInput) -> Estimate:
+        """One filter step of dt: predict with `inputs`, update with `observation` (None =
+        predict only) and return the estimate at the end of the step."""
+        cfg = self.config
+        lin = None if observation is None else self._obs_model.linearize(observation)
+        u = np.zeros(self.nq)
+        wr = np.asarray(inputs.wrench, dtype=np.float64)
+        if wr.size < self.nq - (1 if self.nq == 3 and wr.size == 2 else 0) or wr.size > 3:
+            msg = f"wrench must be (fx, fy[, tau]), got {inputs.wrench}"
+            raise ModelError(msg)
+        u[: min(wr.size, self.nq)] = wr[: self.nq]
+        n_env = len(self.scenario.joints)
+        joints = np.asarray(inputs.joints, dtype=np.float64).reshape(-1)
+        if joints.size != n_env:
+            msg = (
+                f"inputs.joints must hold {n_env} positions {list(self.scenario.joints)}, got "
+                f"{inputs.joints}"
+            )
+            raise ModelError(msg)
+        if inputs.joints_start is not None:
+            self._joints_prev = self._joint_filter.reset(inputs.joints_start)
+        if not self._initialised:
+            if self._joints_prev is None:
+                self._joints_prev = self._joint_filter.reset(joints)
+            self._auto_initialize(lin, self._joints_prev)
+        joints = self._joint_filter.update(joints)
+        env0 = joints if self._joints_prev is None else self._joints_prev
+        env_vel = (joints - env0) / self.dt
+        self._joints_prev = joints
+        self._step += 1
+        dt = self.dt
+        n_p = cfg.particles
+
+        # 1. kinematics and free motion
+        kin = contact_kinematics(self.scenario, self.q, env0, env_vel)
+        f = self.model.generalized_force(self.q, self.v, u)
+        v_free = self.v + dt * f * self._inv_mass
+        an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
+        at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
+        # 2. transition (softened NCP + persistence)
+        soft = soft_modes(kin.phi, an, at, dt, cfg.transition)
+        pred = mode_transition(
+            self.modes,
+            soft[:, None],
+            cfg.transition,
+            phi=kin.phi[:, None],
+            gap_rate_free=an[:, None],
+            dt=dt,
+        )  # (P, B, C, 4)
+        marg = np.einsum("pb,pbcm->pcm", self.fric, pred)
+        # 3. joint hypotheses
+        hyp = enumerate_hypotheses(
+            marg,
+            cfg.prune_threshold,
+            cfg.max_hypotheses,
+            layout=self._layout,
+            phi=kin.phi,
+        )
+        modes_k = hyp.modes  # (P, K, C)
+        n_k = modes_k.shape[1]
+        gathered = np.take_along_axis(
+            pred[:, None], modes_k[:, :, None, :, None], axis=-1
+        )[..., 0]  # (P, K, B, C)
+        with np.errstate(divide="ignore"):
+            lp = np.log(gathered).sum(axis=-1)
+        lp = np.where(hyp.valid[:, :, None], lp, -np.inf)
+        # 4. reduced dynamics for all (particle, hypothesis, friction) triples
+        sol = solve_reduced(
+            modes_k[:, :, None, :],
+            v_free[:, None, None, :],
+            inv_mass=self._inv_mass,
+            jn=kin.Jn[:, None, None],
+            jt=kin.Jt[:, None, None],
+            phi=kin.phi[:, None, None],
+            vn_env=kin.vn_env[:, None, None],
+            vt_env=kin.vt_env[:, None, None],
+            mu=self._mu[None, None],
+            dt=dt,
+            scales=self._scales,
+            groups=self._layout.obstacle,
+        )
+        v_h = sol.v_next  # (P, K, B, nv)
+        l_cond = lp - 0.5 * sol.score
+        l_cond = l_cond - _logsumexp(l_cond, axis=1)[:, None, :]
+        with np.errstate(divide="ignore"):
+            log_alpha = np.log(self.fric)[:, None, :] + l_cond  # (P, K, B)
+        # 5. optimal proposal
+        boost = 1.0
+        if cfg.warmup_steps > 0:
+            boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
+        sigma_v = self._sigma_v * boost
+        terms = proposal_terms(self.q[:, None, None, :], v_h, dt, sigma_v, lin, self._sigma_q)
+        log_joint = log_alpha + terms.log_pred
+        incr = _logsumexp(log_joint, axis=(1, 2))  # (P,)
+        flat = log_joint.reshape(n_p, -1)
+        gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
+        pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
+        k_star, b_star = np.unravel_index(pick, (n_k, self.n_b))
+        rows = np.arange(n_p)
+        e_v, e_q = sample_noise(
+            terms,
+            terms.innovation[rows, k_star, b_star],
+            terms.v_mean[rows, k_star, b_star],
+            dt,
+            self.rng,
+        )
+        v_new = v_h[rows, k_star, b_star] + e_v
+        q_new = self.q + dt * v_new + e_q
+        if self.nq == 3:
+            q_new[:, 2] = wrap_angle(q_new[:, 2])
+        # 6. closed-form discrete posterior given the sampled continuous state
+        dv = (v_new[:, None, None, :] - v_h) / sigma_v
+        log_post = log_alpha - 0.5 * np.sum(dv * dv, axis=-1)
+        log_post = log_post - _logsumexp(log_post, axis=(1, 2))[:, None, None]
+        post = np.exp(log_post)  # (P, K, B)
+        fric_post = post.sum(axis=1)  # (P, B)
+        onehot = (modes_k[..., None] == np.arange(N_MODES)).astype(np.float64)  # (P,K,C,4)
+        num = np.einsum("pkb,pkcm->pbcm", post, onehot)
+        marg_post = num.sum(axis=1)  # (P, C, 4)
+        tiny = 1e-12
+        modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
+        in_c = (modes_k != Mode.SEPARATED).astype(np.float64)  # (P, K, C)
+        p_k = post.sum(axis=2)  # (P, K)
+        pair_in = np.stack(
+            [
+                np.einsum(
+                    "pk,pk->p", p_k, np.max(in_c[:, :, self._contact_pair == pr], axis=2)
+                )
+                if np.any(self._contact_pair == pr)
+                else np.zeros(n_p)
+                for pr in range(self.n_pairs)
+            ],
+            axis=-1,
+        )  # (P, pairs)
+        p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
+        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
+        # 7. eq. (7): predictive friction belief for the next step
+        self.fric = self._predict_friction(fric_post, fric_pair, pair_in)
+        self.modes = modes_post
+        # 8. weights, marginal likelihood, map history, resampling
+        w_prev, _ = normalise_log_weights(self.log_w)
+        with np.errstate(divide="ignore"):
+            log_ml = float(_logsumexp(np.log(w_prev) + incr, axis=0)) if lin is not None else 0.0
+        self.log_w = self.log_w + incr
+        if not np.any(np.isfinite(self.log_w)):
+            msg = (
+                f"all {n_p} particles have zero likelihood at step {self._step}: the observation "
+                f"{observation} is incompatible with the model"
+            )
+            raise ModelError(msg)
+        self.q, self.v = q_new, v_new
+        w, _ = normalise_log_weights(self.log_w)
+        # contact coordinate s at the end of the step for the map
+        kin_new = contact_kinematics(self.scenario, self.q, joints, None)
+        self._hist.append((fric_pair, kin_new.s, p_contact))
+        if len(self._hist) > cfg.map_lag:
+            old = self._hist.pop(0)
+            self._commit(self.map, [old], w)
+        ess = effective_sample_size(w)
+        estimate_w = w
+        resampled = False
+        if ess < cfg.ess_threshold * n_p:
+            idx = self._resampler(w, self.rng)
+            self.q = self.q[idx]
+            self.v = self.v[idx]
+            self.fric = self.fric[idx]
+            self.modes = self.modes[idx]
+            self._hist = [(h[0][idx], h[1][idx], h[2][idx]) for h in self._hist]
+            self.log_w = np.zeros(n_p)
+            resampled = True
+            # estimate with the pre-resampling weights (lower variance)
+        return self._estimate(
+            estimate_w,
+            q_new,
+            v_new,
+            marg_post,
+            fric_pair,
+            ess,
+            float(hyp.n_live.mean()),
+            log_ml,
+            resampled,
+        )
+
+    # ------------------------------------------------------------------------ helpers
+    def _pair_marginals(self, fric_joint: FloatArray) -> FloatArray:
+        """(P, B) joint friction belief -> (P, pairs, Kmax) per-pair marginals (zero-padded)."""
+        n_p = fric_joint.shape[0]
+        out = np.zeros((n_p, self.n_pairs, self._k_max))
+        for p in range(self.n_pairs):
+            if self.config.frozen_friction is not None:
+                out[:, p, self.config.frozen_friction] = 1.0
+            else:
+                np.add.at(out[:, p, :].T, self._beta[:, p], fric_joint.T)
+        return out
+
+    def _predict_friction(
+        self, fric_post: FloatArray, fric_pair: FloatArray, pair_in: FloatArray
+    ) -> FloatArray:
+        cfg = self.config
+        if cfg.frozen_friction is not None:
+            return np.ones_like(fric_post)
+        if cfg.parameter_model == "reuse":
+            return fric_post
+        w = cfg.free_weight + (cfg.contact_weight - cfg.free_weight) * pair_in  # (P, pairs)
+        joint = np.ones_like(fric_post)
+        for p in range(self.n_pairs):
+            k = self._n_cand[p]
+            pr = predict_parameters(
+                fric_pair[:, p, :k], self._prior_pair[p], w[:, p], cfg.parameter_model
+            )
+            joint = joint * pr[:, self._beta[:, p]]
+        joint = joint / joint.sum(axis=1, keepdims=True)
+        return np.asarray(joint, dtype=np.float64)
+
+    def _commit(
+        self,
+        fmap: FrictionMap,
+        entries: list[tuple[FloatArray, FloatArray, FloatArray]],
+        w: FloatArray,
+    ) -> None:
+        if not entries:
+            return
+        fp = np.concatenate([e[0] for e in entries], axis=0)  # (N, pairs, Kmax)
+        s = np.concatenate([e[1] for e in entries], axis=0)  # (N, C)
+        pc = np.concatenate([e[2] for e in entries], axis=0)  # (N, C)
+        ww = np.tile(w, len(entries))
+        for c in range(self.n_c):
+            pr = int(self._contact_pair[c])
+            k = self._n_cand[pr]
+            fmap.add(pr, s[:, c], fp[:, pr, :k], ww * pc[:, c])
+
+    def friction_map(self) -> FrictionMapView:
+        """The friction map including the not yet committed (within the lag) history."""
+        tmp = FrictionMap(
+            self.scenario.friction.prior,
+            self.config.map_range[0],
+            self.config.map_range[1],
+            self.config.map_cell,
+        )
+        tmp._sums = [a.copy() for a in self.map._sums]
+        tmp._weight = [a.copy() for a in self.map._weight]
+        w, _ = normalise_log_weights(self.log_w)
+        self._commit(tmp, self._hist, w)
+        return tmp.view()
+
+    def _estimate(
+        self,
+        w: FloatArray,
+        q: FloatArray,
+        v: FloatArray,
+        marg_post: FloatArray,
+        fric_pair: FloatArray,
+        ess: float,
+        live: float,
+        log_ml: float,
+        resampled: bool,
+    ) -> Estimate:
+        pose = np.zeros(3)
+        pose_cov = np.zeros((3, 3))
+        twist = np.zeros(3)
+        twist_cov = np.zeros((3, 3))
+        nq = self.nq
+        mean_q = w @ q
+        dq = q - mean_q
+        if nq == 3:
+            yaw = math.atan2(float(w @ np.sin(q[:, 2])), float(w @ np.cos(q[:, 2])))
+            mean_q[2] = yaw
+            dq[:, 2] = wrap_angle(q[:, 2] - yaw)
+        pose[:nq] = mean_q
+        pose_cov[:nq, :nq] = (dq * w[:, None]).T @ dq
+        mean_v = w @ v
+        dv = v - mean_v
+        twist[:nq] = mean_v
+        twist_cov[:nq, :nq] = (dv * w[:, None]).T @ dv
+        modes = np.einsum("p,pcm->cm", w, marg_post)
+        friction = np.einsum("p,pqk->qk", w, fric_pair)
+        return Estimate(
+            step=self._step,
+            pose=pose,
+            pose_cov=pose_cov,
+            twist=twist,
+            twist_cov=twist_cov,
+            modes=modes,
+            friction=friction,
+            friction_map=self.friction_map(),
+            ess=ess,
+            live_hypotheses=live,
+            log_likelihood=log_ml,
+            resampled=resampled,
+        )
+
+    def with_config(self, **changes: Any) -> DbcSlamFilter:
+        """A fresh filter with the same scenario and rng and a modified config."""
+        return DbcSlamFilter(self.scenario, replace(self.config, **changes), self.rng)

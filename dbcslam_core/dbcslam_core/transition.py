@@ -1,0 +1,128 @@
+"""Mode transition model p(sigma_l | x_{l-1}, sigma_{l-1}, beta, i) (Sec. III-A).
+
+Per potential contact, the hard NCP checks of the time-stepping model are softened into
+probabilities computed from the free motion of the step (the velocity without contact
+impulses, v_free = v + dt M^-1 F):
+
+* contact: sigmoid(-g / gap_scale) with g = phi + dt (Jn v_free - vn_env) the gap the free
+  motion would reach after one step (negative = it would penetrate). Contacts whose free gap
+  exceeds far_gap cannot close within the step: their in-contact modes get the factor
+  sigmoid(-(g - far_gap) / gap_scale).
+* sticking vs sliding given contact: from the free relative slip velocity vt_free = Jt v_free -
+  vt_env: p_stick proportional to 1 / (1 + (vt_free / slip_scale)^2), sliding in the direction
+  of vt_free, each of the three in-contact modes floored at slide_floor (so the
+  friction-dependent checks of the reduced dynamics, which depend on beta, can decide).
+* persistence: pred = rho * previous marginal + (1 - rho) * soft (modes tend to stay).
+
+The friction-dependent part of the NCP checks (cone |lt| <= mu ln, slip direction, ln >= 0,
+non-penetration) is scored on the reduced solution of each joint hypothesis
+(`contact_modes.solve_reduced`), which the filter multiplies into this prior per beta.
+Geometric exclusions of joint hypotheses live in `contact_modes.geometric_feasible`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from dbcslam_core.contact_modes import N_MODES, Mode
+from dbcslam_core.errors import ModelError
+
+__all__ = ["TransitionParams", "mode_transition", "soft_modes"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TransitionParams:
+    """Parameters of the softened NCP transition (SI units)."""
+
+    persistence: float = 0.9
+    """rho in [0, 1): weight of the previous mode marginal."""
+    gap_scale: float = 2.5e-4
+    """m: sigmoid scale of the predicted free gap."""
+    far_gap: float = 1e-2
+    """m: free gaps beyond this make contact within one step implausible."""
+    slip_scale: float = 2e-2
+    """m/s: slip speed at which sticking and sliding are equally likely."""
+    slide_floor: float = 0.05
+    """minimum share of each in-contact mode (sticking / sliding_pos / sliding_neg)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.persistence < 1.0:
+            msg = f"persistence must be in [0, 1), got {self.persistence}"
+            raise ModelError(msg)
+        for name in ("gap_scale", "slip_scale"):
+            if not getattr(self, name) > 0.0:
+                msg = f"{name} must be > 0, got {getattr(self, name)}"
+                raise ModelError(msg)
+        if not 0.0 <= self.slide_floor < 1.0 / 3.0:
+            msg = f"slide_floor must be in [0, 1/3), got {self.slide_floor}"
+            raise ModelError(msg)
+
+
+def _sigmoid(x: FloatArray) -> FloatArray:
+    return np.asarray(0.5 * (1.0 + np.tanh(0.5 * x)), dtype=np.float64)
+
+
+def soft_modes(
+    phi: npt.ArrayLike,
+    gap_rate_free: npt.ArrayLike,
+    vt_free: npt.ArrayLike,
+    dt: float,
+    params: TransitionParams,
+) -> FloatArray:
+    """Softened NCP mode probabilities (..., C, 4) from the free motion of the step.
+
+    phi (..., C) current gaps (m); gap_rate_free (..., C) = Jn v_free - vn_env (m/s);
+    vt_free (..., C) = Jt v_free - vt_env (m/s).
+    """
+    ph = np.asarray(phi, dtype=np.float64)
+    g = ph + dt * np.asarray(gap_rate_free, dtype=np.float64)
+    vt = np.asarray(vt_free, dtype=np.float64)
+    pc = _sigmoid(-g / params.gap_scale) * _sigmoid(-(g - params.far_gap) / params.gap_scale)
+    a = vt / params.slip_scale
+    p_stick = 1.0 / (1.0 + a * a)
+    p_slide = 1.0 - p_stick
+    direction = _sigmoid(10.0 * a)
+    inc = np.stack([p_stick, p_slide * direction, p_slide * (1.0 - direction)], axis=-1)
+    inc = np.maximum(inc, params.slide_floor)
+    inc = inc / inc.sum(axis=-1, keepdims=True)
+    out = np.concatenate([(1.0 - pc)[..., None], pc[..., None] * inc], axis=-1)
+    return np.asarray(out, dtype=np.float64)
+
+
+def mode_transition(
+    previous: npt.ArrayLike,
+    soft: npt.ArrayLike,
+    params: TransitionParams,
+    *,
+    phi: npt.ArrayLike | None = None,
+    gap_rate_free: npt.ArrayLike | None = None,
+    dt: float = 0.0,
+) -> FloatArray:
+    """Predicted per-contact mode marginals: rho * previous + (1 - rho) * soft.
+
+    previous (..., C, 4) (e.g. (P, B, C, 4)); soft broadcastable (e.g. (P, 1, C, 4)).
+    If phi / gap_rate_free are given, in-contact modes of contacts whose free gap exceeds
+    far_gap are moved to `separated` also in the persistent part (a contact that is far away
+    cannot persist). Rows are renormalised.
+    """
+    prev = np.asarray(previous, dtype=np.float64)
+    sf = np.asarray(soft, dtype=np.float64)
+    if prev.shape[-1] != N_MODES or sf.shape[-1] != N_MODES:
+        msg = f"mode arrays need {N_MODES} modes in the last axis, got {prev.shape}, {sf.shape}"
+        raise ModelError(msg)
+    rho = params.persistence
+    pred = rho * prev + (1.0 - rho) * sf
+    if phi is not None and gap_rate_free is not None:
+        g = np.asarray(phi, dtype=np.float64) + dt * np.asarray(gap_rate_free, dtype=np.float64)
+        reach = _sigmoid(-(g - params.far_gap) / params.gap_scale)
+        reach = np.broadcast_to(reach[..., None], (*pred.shape[:-1], 1))
+        inc = pred[..., Mode.STICKING :]
+        moved = np.sum(inc * (1.0 - reach), axis=-1, keepdims=True)
+        pred = np.concatenate([pred[..., : Mode.STICKING] + moved, inc * reach], axis=-1)
+    s = pred.sum(axis=-1, keepdims=True)
+    return np.asarray(pred / np.maximum(s, 1e-300), dtype=np.float64)

@@ -1,0 +1,464 @@
+"""Paper-style figures of DBC-SLAM runs (Figs. 3 and 4 of the paper), written as PNG files.
+
+Every panel function draws on a matplotlib ``Axes`` from plain numpy arrays (SI units: s, m,
+rad) so it can be reused by `dbcslam replay` and the experiment driver; ``save_*`` functions
+build whole figures from a :class:`dbcslam_core.experiments.RunTrace` and write them to disk.
+The non-interactive Agg backend is selected on import; no display is ever needed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:
+    from dbcslam_core.experiments import RunTrace
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "plot_contact_probability",
+    "plot_friction_map",
+    "plot_friction_posterior",
+    "plot_live_hypotheses",
+    "plot_stick_probability",
+    "plot_trajectory_xy",
+    "plot_value_vs_time",
+    "save_edge_figures",
+    "save_gripper_figures",
+    "save_run_figures",
+    "shade_mask",
+]
+
+TRUTH_STYLE: dict[str, Any] = {"color": "tab:blue", "ls": "--", "lw": 1.4, "label": "truth"}
+OBS_STYLE: dict[str, Any] = {
+    "color": "tab:green",
+    "marker": ".",
+    "ls": "none",
+    "ms": 2.5,
+    "alpha": 0.6,
+    "label": "observations",
+}
+EST_STYLE: dict[str, Any] = {"color": "tab:red", "lw": 1.4, "label": "DBC-SLAM estimate"}
+BASE_STYLE: dict[str, Any] = {"color": "0.35", "lw": 1.0, "ls": ":", "label": "fixed-friction"}
+SHADE: dict[str, Any] = {"color": "0.85", "lw": 0, "zorder": 0}
+DPI = 100
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Contiguous [start, stop) index runs where mask is True."""
+    m = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    d = np.diff(m.astype(np.int8))
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    return list(zip(starts.tolist(), stops.tolist(), strict=True))
+
+
+def shade_mask(ax: Axes, t: ArrayLike, mask: ArrayLike, label: str | None = None) -> None:
+    """Shade the time spans (axis x) where ``mask`` is True; spans reach half a step each side."""
+    tv = np.asarray(t, dtype=float)
+    mv = np.asarray(mask, dtype=bool)
+    if tv.size == 0:
+        return
+    half = 0.5 * (float(np.median(np.diff(tv))) if tv.size > 1 else 1.0)
+    for k, (a, b) in enumerate(_runs(mv)):
+        ax.axvspan(tv[a] - half, tv[b - 1] + half, label=label if k == 0 else None, **SHADE)
+
+
+def _shade_intervals(
+    ax: Axes, intervals: Sequence[tuple[float, float]], label: str | None, vertical: bool = True
+) -> None:
+    for k, (a, b) in enumerate(intervals):
+        lab = label if k == 0 else None
+        if vertical:
+            ax.axvspan(a, b, label=lab, **SHADE)
+        else:
+            ax.axhspan(a, b, label=lab, **SHADE)
+
+
+def plot_trajectory_xy(
+    ax: Axes,
+    true_xy: ArrayLike,
+    obs_xy: ArrayLike | None,
+    est_xy: ArrayLike,
+    *,
+    rough_x: Sequence[tuple[float, float]] = (),
+    edge_y: float | None = None,
+    baseline_xy: ArrayLike | None = None,
+    title: str = "Trajectory",
+) -> None:
+    """x-y trajectory: truth (dashed), observations (dots), estimate (solid); rough x shaded."""
+    tru = np.asarray(true_xy, dtype=float)
+    est = np.asarray(est_xy, dtype=float)
+    _shade_intervals(ax, rough_x, "rough region (high friction)")
+    if edge_y is not None:
+        ax.axhline(edge_y, color="k", lw=1.0, label="edge")
+    if obs_xy is not None:
+        obs = np.asarray(obs_xy, dtype=float)
+        ax.plot(obs[:, 0], obs[:, 1], **OBS_STYLE)
+    ax.plot(tru[:, 0], tru[:, 1], **TRUTH_STYLE)
+    ax.plot(est[:, 0], est[:, 1], **EST_STYLE)
+    if baseline_xy is not None:
+        b = np.asarray(baseline_xy, dtype=float)
+        ax.plot(b[:, 0], b[:, 1], **BASE_STYLE)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(True, alpha=0.3)
+
+
+def plot_value_vs_time(
+    ax: Axes,
+    t: ArrayLike,
+    truth: ArrayLike,
+    obs: ArrayLike | None,
+    est: ArrayLike,
+    *,
+    shade: ArrayLike | None = None,
+    shade_label: str | None = None,
+    ylabel: str = "x [m]",
+    title: str = "",
+    baseline: ArrayLike | None = None,
+) -> None:
+    """A scalar (e.g. x or yaw) over time: truth, observations, estimate; optional shaded mask."""
+    tv = np.asarray(t, dtype=float)
+    if shade is not None:
+        shade_mask(ax, tv, shade, shade_label)
+    if obs is not None:
+        ax.plot(tv, np.asarray(obs, dtype=float), **OBS_STYLE)
+    ax.plot(tv, np.asarray(truth, dtype=float), **TRUTH_STYLE)
+    ax.plot(tv, np.asarray(est, dtype=float), **EST_STYLE)
+    if baseline is not None:
+        ax.plot(tv, np.asarray(baseline, dtype=float), **BASE_STYLE)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(True, alpha=0.3)
+
+
+def _prob_axes(ax: Axes, title: str, ylabel: str) -> None:
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(True, alpha=0.3)
+
+
+def plot_contact_probability(
+    ax: Axes, t: ArrayLike, p_contact: ArrayLike, true_contact: ArrayLike, *, title: str = ""
+) -> None:
+    """P(in contact) over time with the truly-in-contact periods shaded."""
+    tv = np.asarray(t, dtype=float)
+    shade_mask(ax, tv, true_contact, "true contact")
+    ax.plot(tv, np.asarray(p_contact, dtype=float), **{**EST_STYLE, "label": "P(contact)"})
+    _prob_axes(ax, title or "Probability of contact", "P(contact) [-]")
+
+
+def plot_stick_probability(
+    ax: Axes, t: ArrayLike, p_stick: ArrayLike, true_stick: ArrayLike, *, title: str = ""
+) -> None:
+    """P(sticking) over time with the truly-sticking periods shaded."""
+    tv = np.asarray(t, dtype=float)
+    shade_mask(ax, tv, true_stick, "true sticking")
+    ax.plot(tv, np.asarray(p_stick, dtype=float), **{**EST_STYLE, "label": "P(sticking)"})
+    _prob_axes(ax, title or "Probability of sticking", "P(sticking) [-]")
+
+
+def plot_friction_posterior(
+    ax: Axes,
+    t: ArrayLike,
+    posterior: ArrayLike,
+    candidates: Sequence[float],
+    *,
+    highlight: int | None = None,
+    shade: ArrayLike | None = None,
+    shade_label: str | None = None,
+    title: str = "",
+) -> None:
+    """Friction posterior P(mu = candidate) over time, one line per candidate.
+
+    Args:
+        posterior: (T, B) posterior of one friction pair.
+        highlight: index of the candidate drawn bold (e.g. the true one); others thin.
+    """
+    tv = np.asarray(t, dtype=float)
+    post = np.asarray(posterior, dtype=float)
+    if shade is not None:
+        shade_mask(ax, tv, shade, shade_label)
+    for b, mu in enumerate(candidates):
+        bold = highlight is None or b == highlight
+        ax.plot(
+            tv,
+            post[:, b],
+            lw=1.6 if bold else 0.9,
+            color="tab:red" if (highlight is not None and bold) else None,
+            alpha=1.0 if bold else 0.7,
+            label=f"P(mu = {mu:g})",
+        )
+    _prob_axes(ax, title or "Friction posterior", "probability [-]")
+
+
+def plot_friction_map(
+    ax: Axes,
+    cell_edges: ArrayLike,
+    p_cell: ArrayLike,
+    *,
+    rough_x: Sequence[tuple[float, float]] = (),
+    step_x: ArrayLike | None = None,
+    step_p: ArrayLike | None = None,
+    weight: ArrayLike | None = None,
+    min_weight: float = 0.5,
+    candidate: float = 0.3,
+    title: str = "",
+) -> None:
+    """Friction map along the edge: per-cell P(mu = candidate) vs x (like Fig. 3b).
+
+    Args:
+        cell_edges: (N + 1,) cell boundaries along the edge (m).
+        p_cell: (N,) per-cell probability of the candidate (NaN: never touched).
+        step_x, step_p: optional per-step estimated x and instantaneous P(mu = candidate),
+            drawn as dots (the paper's Fig. 3b shows these).
+        weight: optional (N,) accumulated contact evidence per cell; cells below `min_weight`
+            (about half a step in contact) are left blank, and the x axis spans the cells
+            above it.
+    """
+    edges = np.asarray(cell_edges, dtype=float)
+    p = np.asarray(p_cell, dtype=float).copy()
+    if weight is not None:
+        wv = np.asarray(weight, dtype=float)
+        p[wv < min_weight] = np.nan
+        seen = np.flatnonzero(wv >= min_weight)
+        if seen.size:
+            lo, hi = edges[seen[0]], edges[seen[-1] + 1]
+            pad = 0.1 * (hi - lo) + 1e-9
+            ax.set_xlim(lo - pad, hi + pad)
+    _shade_intervals(ax, rough_x, "rough region (high friction)")
+    if step_x is not None and step_p is not None:
+        ax.plot(
+            np.asarray(step_x, dtype=float),
+            np.asarray(step_p, dtype=float),
+            ".",
+            ms=2.5,
+            color="tab:blue",
+            alpha=0.5,
+            label="per step (at estimated x)",
+        )
+    ax.stairs(
+        p,
+        edges,
+        baseline=None,
+        color="tab:red",
+        lw=1.6,
+        label="friction map (per cell)",
+    )
+    ax.axhline(0.5, color="k", lw=0.6, ls=":")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_xlabel("x along the edge [m]")
+    ax.set_ylabel(f"P(mu = {candidate:g}) [-]")
+    ax.set_title(title or f"Friction map: P(mu = {candidate:g}) along the edge")
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(True, alpha=0.3)
+
+
+def plot_live_hypotheses(
+    ax: Axes, t: ArrayLike, live: ArrayLike, *, total: int | None = None, title: str = ""
+) -> None:
+    """Mean number of live joint contact-mode hypotheses per particle over time."""
+    tv = np.asarray(t, dtype=float)
+    ax.plot(
+        tv,
+        np.asarray(live, dtype=float),
+        color="tab:purple",
+        lw=1.2,
+        label="live hypotheses / particle",
+    )
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("hypotheses [-]")
+    ttl = title or "Live contact-mode hypotheses per particle"
+    if total is not None:
+        ttl += f" (of {total} joint modes)"
+    ax.set_title(ttl)
+    ax.set_yscale("log")
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(True, alpha=0.3, which="both")
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _new(figsize: tuple[float, float] = (6.0, 3.6)) -> tuple[Figure, Axes]:
+    fig, ax = plt.subplots(figsize=figsize)
+    return fig, ax
+
+
+def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge") -> list[Path]:
+    """Write the edge (table polishing) figures of one run; returns the PNG paths.
+
+    Files: ``{prefix}_trajectory.png`` (a), ``{prefix}_x_time.png`` (b),
+    ``{prefix}_contact.png`` (c), ``{prefix}_sticking.png`` (d),
+    ``{prefix}_friction.png`` (e: posterior over time and map along the edge).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tr = trace
+    paths: list[Path] = []
+    rough = list(tr.rough_intervals)
+    true_stick = tr.true_modes[:, 0] == 1
+    true_contact = tr.true_modes[:, 0] != 0
+    base = tr.baseline_q
+
+    fig, ax = _new((6.5, 3.8))
+    plot_trajectory_xy(
+        ax,
+        tr.true_q[:, :2],
+        tr.obs_q[:, :2],
+        tr.est_q[:, :2],
+        rough_x=rough,
+        edge_y=tr.edge_y,
+        baseline_xy=None if base is None else base[:, :2],
+        title=f"Edge: point-mass trajectory (seed {tr.seed})",
+    )
+    paths.append(_save(fig, out / f"{prefix}_trajectory.png"))
+
+    fig, ax = _new()
+    plot_value_vs_time(
+        ax,
+        tr.t,
+        tr.true_q[:, 0],
+        tr.obs_q[:, 0],
+        tr.est_q[:, 0],
+        shade=true_stick,
+        shade_label="true sticking",
+        ylabel="x [m]",
+        title="Edge: x over time (true sticking shaded)",
+        baseline=None if base is None else base[:, 0],
+    )
+    paths.append(_save(fig, out / f"{prefix}_x_time.png"))
+
+    fig, ax = _new()
+    plot_contact_probability(
+        ax,
+        tr.t,
+        1.0 - tr.est_modes[:, 0, 0],
+        true_contact,
+        title="Edge: P(contact) (true contact shaded)",
+    )
+    paths.append(_save(fig, out / f"{prefix}_contact.png"))
+
+    fig, ax = _new()
+    p_stick = tr.est_modes[:, 0, 1] / np.maximum(1.0 - tr.est_modes[:, 0, 0], 1e-12)
+    plot_stick_probability(
+        ax,
+        tr.t,
+        np.clip(p_stick, 0.0, 1.0),
+        true_stick,
+        title="Edge: P(sticking | contact) (true sticking shaded)",
+    )
+    paths.append(_save(fig, out / f"{prefix}_sticking.png"))
+
+    fig, axs = plt.subplots(1, 2, figsize=(11.0, 3.6))
+    low = int(np.argmin(tr.candidates))
+    in_rough = np.zeros(tr.t.size, dtype=bool)
+    for a, b in rough:
+        in_rough |= (tr.true_q[:, 0] >= a) & (tr.true_q[:, 0] <= b)
+    plot_friction_posterior(
+        axs[0],
+        tr.t,
+        tr.friction_post,
+        tr.candidates,
+        highlight=low,
+        shade=in_rough & true_contact,
+        shade_label="contact in rough region",
+        title="Edge: friction posterior over time",
+    )
+    if tr.map_edges is not None and tr.map_post is not None:
+        plot_friction_map(
+            axs[1],
+            tr.map_edges,
+            tr.map_post[:, low],
+            rough_x=rough,
+            step_x=tr.est_q[true_contact, 0],
+            step_p=tr.friction_post[true_contact, low],
+            weight=tr.map_weight,
+            candidate=float(tr.candidates[low]),
+        )
+    else:
+        axs[1].set_axis_off()
+    paths.append(_save(fig, out / f"{prefix}_friction.png"))
+    return paths
+
+
+def save_gripper_figures(
+    trace: RunTrace, out_dir: Path | str, prefix: str = "gripper"
+) -> list[Path]:
+    """Write the gripper figures of one run (Fig. 4): CoM trajectory, yaw, P(mu true), hypotheses.
+
+    Files: ``{prefix}_com.png``, ``{prefix}_yaw.png``, ``{prefix}_friction.png``,
+    ``{prefix}_hypotheses.png``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tr = trace
+    paths: list[Path] = []
+
+    fig, ax = _new((5.0, 4.2))
+    plot_trajectory_xy(
+        ax,
+        tr.true_q[:, :2],
+        tr.obs_q[:, :2],
+        tr.est_q[:, :2],
+        title=f"Gripper: centre-of-mass trajectory (seed {tr.seed})",
+    )
+    paths.append(_save(fig, out / f"{prefix}_com.png"))
+
+    fig, ax = _new()
+    plot_value_vs_time(
+        ax,
+        tr.t,
+        tr.true_q[:, 2],
+        tr.obs_q[:, 2],
+        tr.est_q[:, 2],
+        ylabel="yaw [rad]",
+        title="Gripper: orientation over time",
+    )
+    paths.append(_save(fig, out / f"{prefix}_yaw.png"))
+
+    fig, ax = _new()
+    ti = tr.true_friction_index
+    mu = float(tr.candidates[ti])
+    ax.plot(tr.t, tr.friction_post[:, ti], **{**EST_STYLE, "label": f"P(mu = {mu:g})"})
+    any_contact = np.any(tr.true_modes != 0, axis=1)
+    shade_mask(ax, tr.t, any_contact, "true contact (any)")
+    _prob_axes(ax, f"Gripper: probability of the true friction mu = {mu:g}", "probability [-]")
+    paths.append(_save(fig, out / f"{prefix}_friction.png"))
+
+    fig, ax = _new()
+    if tr.live_hypotheses is not None:
+        plot_live_hypotheses(ax, tr.t, tr.live_hypotheses, total=tr.n_joint_modes)
+    else:
+        ax.set_axis_off()
+    paths.append(_save(fig, out / f"{prefix}_hypotheses.png"))
+    return paths
+
+
+def save_run_figures(trace: RunTrace, out_dir: Path | str) -> list[Path]:
+    """Dispatch on ``trace.scenario`` (``edge`` or ``gripper``)."""
+    if trace.scenario == "edge":
+        return save_edge_figures(trace, out_dir)
+    return save_gripper_figures(trace, out_dir)

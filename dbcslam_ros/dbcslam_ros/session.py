@@ -1,0 +1,204 @@
+"""Input synchronisation around the core filter, shared by the live node and offline replay.
+
+A :class:`FilterSession` receives decoded input readings in arrival order and turns each pose
+observation into filter steps. Rules (documented in the README):
+
+* The pose observation drives the filter: every accepted `/object/pose` ends one model step
+  (or several, see below) and yields one estimate stamped with the pose's stamp.
+* Wrench (the input u): zero-order hold. The wrench applied during the step (t_prev, t] is the
+  latest `/object/wrench` stamped at or before t_prev (what the robot commanded when the step
+  began); before any wrench arrives, u = 0.
+* Joints (jaw / pusher positions, the moving obstacles): the positions at the pose time t,
+  linearly interpolated between the two joint messages that bracket t, or held from the
+  latest one when no later message has arrived yet.
+* Pose stamps that are not later than the previous one by at least half a model step are
+  rejected (reason `stamp_order`); a jump back in time of more than `reset_after_s` (a bag
+  played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
+  predict-only steps first (dropped observations).
+* Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
+  the session counts them per reason and stays usable.
+"""
+
+from __future__ import annotations
+
+import bisect
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dbcslam_core.extensions import ModelExtension
+from dbcslam_core.observation import PoseObservation
+from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
+from dbcslam_core.scenario import Scenario
+from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
+
+__all__ = ["FilterSession", "StampedEstimate"]
+
+NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class StampedEstimate:
+    """An estimate with the stamp (ns) of the observation it answers and its compute time."""
+
+    stamp_ns: int
+    estimate: Estimate
+    step_time_s: float
+
+
+@dataclass
+class _History:
+    """Time-ordered readings with bounded length."""
+
+    stamps: deque[int] = field(default_factory=lambda: deque(maxlen=512))
+    values: deque[tuple[float, ...]] = field(default_factory=lambda: deque(maxlen=512))
+
+    def add(self, stamp_ns: int, value: tuple[float, ...]) -> None:
+        if self.stamps and stamp_ns < self.stamps[-1]:
+            # Late message from the past: keep the order so interpolation stays valid.
+            idx = bisect.bisect_right(list(self.stamps), stamp_ns)
+            stamps, values = list(self.stamps), list(self.values)
+            stamps.insert(idx, stamp_ns)
+            values.insert(idx, value)
+            self.stamps = deque(stamps, maxlen=512)
+            self.values = deque(values, maxlen=512)
+            return
+        self.stamps.append(stamp_ns)
+        self.values.append(value)
+
+    def clear(self) -> None:
+        self.stamps.clear()
+        self.values.clear()
+
+    def held(self, t_ns: int) -> tuple[float, ...] | None:
+        """Latest value stamped at or before t (zero-order hold)."""
+        stamps = list(self.stamps)
+        idx = bisect.bisect_right(stamps, t_ns) - 1
+        if idx < 0:
+            return None
+        return self.values[idx]
+
+    def interpolated(self, t_ns: int) -> tuple[float, ...] | None:
+        """Linear interpolation at t between bracketing values; hold at the ends."""
+        if not self.stamps:
+            return None
+        stamps = list(self.stamps)
+        idx = bisect.bisect_right(stamps, t_ns)
+        if idx == 0:
+            return self.values[0]
+        if idx == len(stamps):
+            return self.values[-1]
+        t0, t1 = stamps[idx - 1], stamps[idx]
+        v0, v1 = np.asarray(self.values[idx - 1]), np.asarray(self.values[idx])
+        a = 0.0 if t1 == t0 else (t_ns - t0) / (t1 - t0)
+        return tuple(float(v) for v in (1.0 - a) * v0 + a * v1)
+
+
+class FilterSession:
+    """Feeds readings to a :class:`DbcSlamFilter` with the synchronisation rules above."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        config: FilterConfig,
+        seed: int = 0,
+        extensions: tuple[ModelExtension, ...] = (),
+        reset_after_s: float = 0.5,
+    ) -> None:
+        self.scenario = scenario
+        self.config = config
+        self.seed = seed
+        self.extensions = extensions
+        self.reset_after_ns = int(reset_after_s * NS)
+        self.rejected: Counter[str] = Counter()
+        self.resets = 0
+        self.steps = 0
+        self._wrench = _History()
+        self._joints = _History()
+        self._last_pose_ns: int | None = None
+        self._filter: DbcSlamFilter | None = None
+        self._new_filter()
+
+    # -- inputs ---------------------------------------------------------------------------
+    def add_wrench(self, reading: WrenchReading) -> None:
+        """Record an applied wrench (the known input u)."""
+        self._wrench.add(reading.stamp_ns, (reading.fx, reading.fy, reading.tau))
+
+    def add_joints(self, reading: JointReading) -> None:
+        """Record joint positions (already in scenario.joints order)."""
+        self._joints.add(reading.stamp_ns, reading.positions)
+
+    def reject(self, reason: str) -> None:
+        """Count an input rejected before it reached the session (e.g. failed conversion)."""
+        self.rejected[reason] += 1
+
+    def add_pose(self, reading: PoseReading) -> list[StampedEstimate]:
+        """Process one pose observation; returns the estimate(s) it produced (0 or 1).
+
+        Raises InputRejected (and counts it) for observations that cannot be used.
+        """
+        dt_ns = round(self.scenario.dt * NS)
+        last = self._last_pose_ns
+        if last is not None and reading.stamp_ns < last - self.reset_after_ns:
+            self.reset()
+            last = None
+        if last is not None and reading.stamp_ns - last < dt_ns // 2:
+            self.rejected["stamp_order"] += 1
+            msg = (
+                f"pose stamp {reading.stamp_ns} ns is not later than the previous "
+                f"{last} ns by at least half a model step ({dt_ns / 2e9:.4f} s)"
+            )
+            raise InputRejected("stamp_order", msg)
+        joints = self._joints_at(reading.stamp_ns)
+        obs = PoseObservation(
+            reading.x, reading.y, reading.yaw if self.scenario.body.shape == "polygon" else None
+        )
+        flt = self._filter
+        assert flt is not None
+        if last is None:
+            q0 = [reading.x, reading.y] + ([reading.yaw] if self.scenario.nq == 3 else [])
+            std = [self.scenario.noise.position] * 2 + (
+                [self.scenario.noise.yaw] if self.scenario.nq == 3 else []
+            )
+            flt.initialize(q0, std, joints=joints)
+            self._last_pose_ns = reading.stamp_ns
+            return []
+        n_steps = max(1, round((reading.stamp_ns - last) / dt_ns))
+        started = time.perf_counter()
+        est: Estimate | None = None
+        for k in range(n_steps):
+            t_start = last + k * dt_ns
+            t_end = reading.stamp_ns if k == n_steps - 1 else t_start + dt_ns
+            wrench = self._wrench.held(t_start) or (0.0, 0.0, 0.0)
+            inp = FilterInput(wrench=wrench, joints=self._joints_at(t_end))
+            est = flt.step(obs if k == n_steps - 1 else None, inp)
+        assert est is not None
+        self._last_pose_ns = reading.stamp_ns
+        self.steps += n_steps
+        return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started)]
+
+    # -- control --------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget all state (new particles from the next pose); counters survive."""
+        self.resets += 1
+        self._wrench.clear()
+        self._joints.clear()
+        self._last_pose_ns = None
+        self._new_filter()
+
+    def _new_filter(self) -> None:
+        rng = np.random.default_rng(self.seed + self.resets)
+        self._filter = DbcSlamFilter(self.scenario, self.config, rng, extensions=self.extensions)
+
+    def _joints_at(self, t_ns: int) -> tuple[float, ...]:
+        n = len(self.scenario.joints)
+        if n == 0:
+            return ()
+        value = self._joints.interpolated(t_ns)
+        if value is None:
+            self.rejected["no_joints"] += 1
+            msg = f"no /joint_states received yet; need {list(self.scenario.joints)}"
+            raise InputRejected("no_joints", msg)
+        return value

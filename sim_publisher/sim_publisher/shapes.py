@@ -1,0 +1,144 @@
+"""Pushed-object outlines (MIT MCube push dataset) and their mass properties.
+
+Outlines are (n, 2) vertex arrays in metres; the package ships `rect1`, `ellip1`, `ellip3`
+and `hex` (stainless steel, 13 mm thick) in `data/shapes/`. `load_outline` returns the
+outline counter-clockwise, about its centroid (the centre of mass of a uniform plate),
+reduced to its strictly convex hull (the pybullet collision shape is that hull).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ParamError
+
+__all__ = ["SHAPES", "SHAPE_DIR", "STEEL_DENSITY", "Outline", "ShapeInfo", "load_outline"]
+
+SHAPE_DIR: Path = Path(__file__).resolve().parent / "data" / "shapes"
+STEEL_DENSITY: float = 7950.0
+"""kg/m^3, consistent with the dataset's rect1 mass (0.8374 kg for 90 x 90 x 13 mm)."""
+
+
+@dataclass(frozen=True)
+class ShapeInfo:
+    """Dataset facts of one shape: mass (kg) and polar inertia about the centroid (kg m^2)."""
+
+    mass: float
+    inertia: float
+
+
+SHAPES: dict[str, ShapeInfo] = {
+    "rect1": ShapeInfo(0.8374, 1.131e-3),
+    "ellip1": ShapeInfo(0.8937, 1.231e-3),
+    "ellip3": ShapeInfo(1.3338, 2.973e-3),
+    "hex": ShapeInfo(0.9827, 1.497e-3),
+}
+
+
+@dataclass(frozen=True)
+class Outline:
+    """A convex outline about its centroid (counter-clockwise, m) and its mass properties.
+
+    offset: position (m) of the centroid in the file's object frame (vertices_file =
+    vertices + offset). mass in kg, inertia about the centroid in kg m^2.
+    """
+
+    name: str
+    vertices: NDArray[np.float64]
+    offset: tuple[float, float]
+    area: float
+    mass: float
+    inertia: float
+
+
+def _hull(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
+    pts = sorted({(float(x), float(y)) for x, y in points})
+    if len(pts) < 3:
+        return np.asarray(pts, dtype=np.float64)
+    scale = max(math.hypot(x, y) for x, y in pts)
+    tol = 1e-10 * scale * scale
+
+    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple[float, float]] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= tol:
+            lower.pop()
+        lower.append(p)
+    upper: list[tuple[float, float]] = []
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= tol:
+            upper.pop()
+        upper.append(p)
+    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
+
+
+def _area_centroid(v: NDArray[np.float64]) -> tuple[float, float, float]:
+    x, y = v[:, 0], v[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    a = 0.5 * float(np.sum(cr))
+    cx = float(np.sum((x + xn) * cr)) / (6.0 * a)
+    cy = float(np.sum((y + yn) * cr)) / (6.0 * a)
+    return a, cx, cy
+
+
+def _polar_inertia(v: NDArray[np.float64], mass: float) -> float:
+    x, y = v[:, 0], v[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    num = float(np.sum(cr * (x * x + x * xn + xn * xn + y * y + y * yn + yn * yn)))
+    return mass * num / (6.0 * float(np.sum(cr)))
+
+
+def load_outline(
+    shape: str,
+    *,
+    thickness: float = 0.013,
+    mass: float | None = None,
+    inertia: float | None = None,
+) -> Outline:
+    """Outline of `shape` (a name of `SHAPES` or a path to an (n, 2) `.npy` file).
+
+    mass/inertia default to the dataset table for known shapes, else to a uniform steel plate
+    of `thickness` (m). Raises `ParamError` for unknown shapes or malformed files.
+    """
+    path = Path(shape)
+    if shape in SHAPES:
+        path = SHAPE_DIR / f"{shape}_ext.npy"
+    elif path.suffix != ".npy":
+        msg = (
+            f"unknown shape {shape!r}; valid shapes are {sorted(SHAPES)} or a path to an "
+            "(n, 2) .npy outline"
+        )
+        raise ParamError(msg)
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        msg = f"cannot load outline file {path}: {err}"
+        raise ParamError(msg) from err
+    if raw.ndim != 2 or raw.shape[1] != 2 or raw.shape[0] < 3 or not np.all(np.isfinite(raw)):
+        msg = f"outline file {path} must hold a finite (n >= 3, 2) array, got shape {raw.shape}"
+        raise ParamError(msg)
+    hull = _hull(np.asarray(raw, dtype=np.float64))
+    if len(hull) < 3:
+        msg = f"outline file {path} is degenerate (fewer than 3 hull vertices)"
+        raise ParamError(msg)
+    area, cx, cy = _area_centroid(hull)
+    verts = hull - np.array([cx, cy])
+    info = SHAPES.get(shape)
+    m = mass if mass is not None else (info.mass if info else STEEL_DENSITY * area * thickness)
+    if inertia is not None:
+        izz = inertia
+    elif info is not None and mass is None:
+        izz = info.inertia
+    else:
+        izz = _polar_inertia(verts, m)
+    return Outline(path.stem.removesuffix("_ext"), verts, (cx, cy), area, float(m), float(izz))

@@ -1,0 +1,105 @@
+"""Observation model and the closed-form optimal proposal."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dbcslam_core.errors import ModelError
+from dbcslam_core.observation import (
+    JointSmoother,
+    PoseObservation,
+    PoseObservationModel,
+    proposal_terms,
+    sample_noise,
+    wrap_angle,
+)
+
+
+def test_linearize_and_likelihood() -> None:
+    m = PoseObservationModel(3, 0.01, 0.1)
+    lin = m.linearize(PoseObservation(1.0, 2.0, np.pi - 0.05))
+    q = np.array([1.0, 2.0, -np.pi + 0.05])  # 0.1 rad away across the wrap
+    ll = lin.log_likelihood(q)
+    expected = -0.5 * (
+        (0.1 / 0.1) ** 2 + 2 * np.log(2 * np.pi) + np.log(2 * np.pi) + np.log(1e-4 * 1e-4 * 1e-2)
+    )
+    assert ll == pytest.approx(expected)
+    assert PoseObservationModel(2, 0.01).linearize(PoseObservation(0.0, 0.0)).index.size == 2
+    with pytest.raises(ModelError, match="no yaw"):
+        PoseObservationModel(2, 0.01).linearize(PoseObservation(0.0, 0.0, 0.1))
+    with pytest.raises(ModelError, match="finite"):
+        m.linearize(PoseObservation(np.nan, 0.0, 0.0))
+    assert wrap_angle(3 * np.pi) == pytest.approx(-np.pi)
+
+
+def test_proposal_matches_joint_gaussian_conditioning() -> None:
+    """(e_v, e_q, o) are jointly Gaussian per dimension: compare with direct conditioning."""
+    dt, sv, sq, r = 0.01, 0.3, 0.002, 0.01
+    m = PoseObservationModel(2, r)
+    lin = m.linearize(PoseObservation(0.013, -0.004))
+    q = np.array([0.0, 0.0])
+    vh = np.array([1.0, -0.5])
+    t = proposal_terms(q, vh, dt, np.full(2, sv), lin, np.full(2, sq))
+    # joint covariance of (e_v, e_q, o) for one dimension
+    cov = np.array(
+        [
+            [sv**2, 0.0, dt * sv**2],
+            [0.0, sq**2, sq**2],
+            [dt * sv**2, sq**2, dt**2 * sv**2 + sq**2 + r**2],
+        ]
+    )
+    for d in range(2):
+        y = lin.value[d] - (q[d] + dt * vh[d])
+        mean_post = cov[:2, 2] / cov[2, 2] * y
+        cov_post = cov[:2, :2] - np.outer(cov[:2, 2], cov[2, :2]) / cov[2, 2]
+        assert t.v_mean[d] == pytest.approx(mean_post[0])
+        assert t.v_std[d] ** 2 == pytest.approx(cov_post[0, 0])
+        # e_q | e_v: conditional of the joint posterior
+        gain = cov_post[1, 0] / cov_post[0, 0]
+        var_q = cov_post[1, 1] - cov_post[1, 0] ** 2 / cov_post[0, 0]
+        assert t.q_std[d] ** 2 == pytest.approx(var_q)
+        e_v = 0.05
+        mean_q = t.q_gain[d] * (y - dt * e_v)
+        assert mean_q == pytest.approx(mean_post[1] + gain * (e_v - mean_post[0]))
+    s = dt**2 * sv**2 + sq**2 + r**2
+    y = lin.value - dt * vh
+    assert float(t.log_pred) == pytest.approx(
+        float(np.sum(-0.5 * (y**2 / s + np.log(2 * np.pi * s))))
+    )
+
+
+def test_sample_noise_moments_and_prediction_only() -> None:
+    dt = 0.01
+    lin = PoseObservationModel(2, 0.01).linearize(PoseObservation(0.02, 0.0))
+    sv = np.array([0.5, 0.5])
+    sq = np.array([0.001, 0.001])
+    t = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, lin, sq)
+    rng = np.random.default_rng(1)
+    n = 200_000
+    e_v, e_q = sample_noise(
+        t, np.broadcast_to(t.innovation, (n, 2)), np.broadcast_to(t.v_mean, (n, 2)), dt, rng
+    )
+    q_next = dt * e_v + e_q
+    # posterior mean of q' given o: prior var p = dt^2 sv^2 + sq^2, obs var R
+    p = dt**2 * sv[0] ** 2 + sq[0] ** 2
+    assert q_next[:, 0].mean() == pytest.approx(p / (p + 1e-4) * 0.02, rel=0.02)
+    assert q_next[:, 0].var() == pytest.approx(p * 1e-4 / (p + 1e-4), rel=0.02)
+    t0 = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, None, sq)
+    assert float(t0.log_pred) == 0.0
+    np.testing.assert_allclose(t0.v_std, sv)
+    np.testing.assert_allclose(t0.q_std, sq)
+
+
+def test_joint_smoother_reduces_noise_and_tracks_ramp() -> None:
+    rng = np.random.default_rng(0)
+    dt, noise = 0.01, 5e-4
+    t = np.arange(300) * dt
+    truth = 0.05 * t
+    sm = JointSmoother(1, dt, noise, accel_std=0.3)
+    sm.reset(truth[0] + noise * rng.standard_normal())
+    est = np.array([sm.update([x + noise * rng.standard_normal()])[0] for x in truth[1:]])
+    err = est[50:] - truth[51:]
+    assert np.sqrt(np.mean(err**2)) < 0.5 * noise
+    passthrough = JointSmoother(2, dt, 0.0)
+    np.testing.assert_allclose(passthrough.update([1.0, 2.0]), [1.0, 2.0])

@@ -1,0 +1,67 @@
+"""Softened NCP mode transition model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dbcslam_core.contact_modes import Mode
+from dbcslam_core.errors import ModelError
+from dbcslam_core.transition import TransitionParams, mode_transition, soft_modes
+
+P = TransitionParams()
+DT = 0.01
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    phi=st.floats(-0.01, 0.1),
+    vn=st.floats(-5.0, 5.0),
+    vt=st.floats(-5.0, 5.0),
+)
+def test_soft_modes_are_distributions(phi: float, vn: float, vt: float) -> None:
+    out = soft_modes(np.array([phi]), np.array([vn]), np.array([vt]), DT, P)
+    assert out.shape == (1, 4)
+    assert np.all(out >= 0.0)
+    assert out.sum() == pytest.approx(1.0)
+
+
+def test_soft_modes_follow_gap_and_slip() -> None:
+    far = soft_modes(np.array([0.05]), np.array([0.0]), np.array([0.0]), DT, P)[0]
+    assert far[Mode.SEPARATED] > 0.999
+    pressing = soft_modes(np.array([0.0]), np.array([-0.1]), np.array([0.0]), DT, P)[0]
+    assert pressing[Mode.SEPARATED] < 0.02
+    assert pressing[Mode.STICKING] == max(pressing)
+    lifting = soft_modes(np.array([0.0]), np.array([0.5]), np.array([0.0]), DT, P)[0]
+    assert lifting[Mode.SEPARATED] > 0.99
+    sliding = soft_modes(np.array([0.0]), np.array([-0.1]), np.array([0.5]), DT, P)[0]
+    assert sliding[Mode.SLIDING_POS] > 0.8
+    assert sliding[Mode.SLIDING_NEG] >= P.slide_floor * (1 - sliding[0]) - 1e-12
+    back = soft_modes(np.array([0.0]), np.array([-0.1]), np.array([-0.5]), DT, P)[0]
+    assert back[Mode.SLIDING_NEG] > 0.8
+
+
+def test_persistence_and_far_contacts() -> None:
+    prev = np.array([[0.0, 1.0, 0.0, 0.0]])
+    soft = np.array([[0.0, 0.0, 1.0, 0.0]])
+    pred = mode_transition(prev, soft, P)
+    np.testing.assert_allclose(pred, [[0.0, 0.9, 0.1, 0.0]])
+    # a contact whose free gap is far cannot persist in contact
+    far = mode_transition(prev, soft, P, phi=np.array([0.05]), gap_rate_free=np.zeros(1), dt=DT)
+    assert far[0, Mode.SEPARATED] == pytest.approx(1.0)
+    near = mode_transition(prev, soft, P, phi=np.array([0.0]), gap_rate_free=np.zeros(1), dt=DT)
+    np.testing.assert_allclose(near, pred, atol=1e-4)
+    # broadcasting (P, B, C, 4) against (P, 1, C, 4)
+    prevb = np.tile(prev, (2, 3, 1, 1))
+    assert mode_transition(prevb, soft[None, None], P).shape == (2, 3, 1, 4)
+
+
+def test_params_validate() -> None:
+    with pytest.raises(ModelError):
+        TransitionParams(persistence=1.0)
+    with pytest.raises(ModelError):
+        TransitionParams(gap_scale=0.0)
+    with pytest.raises(ModelError):
+        mode_transition(np.zeros((1, 3)), np.zeros((1, 3)), P)

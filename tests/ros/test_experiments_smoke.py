@@ -1,0 +1,60 @@
+"""Smoke test of `python -m dbcslam_ros.experiments`: tiny run, files appear, table parses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from dbcslam_ros.experiments import main
+
+
+@pytest.fixture(scope="module")
+def out_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("experiments")
+    rc = main(["--out", str(out), "--seeds", "1", "--particles", "8", "--steps", "25", "--quiet"])
+    assert rc == 0
+    return out
+
+
+def test_table_files_parse(out_dir: Path) -> None:
+    data = json.loads((out_dir / "experiments.json").read_text())
+    assert data["config"]["particles"] == 8
+    assert {r["scenario"] for r in data["runs"]} == {"edge", "gripper"}
+    methods = {r["method"] for r in data["runs"] if r["scenario"] == "edge"}
+    assert methods == {"dbcslam", "fixed_mu_0.3", "fixed_mu_0.9"}
+    labels = [t["target"] for t in data["targets"]]
+    assert any("friction map" in lab for lab in labels)
+    for t in data["targets"]:
+        assert t["passed"] in (True, False, None)
+    md = (out_dir / "experiments.md").read_text()
+    rows = [
+        ln for ln in md.splitlines() if ln.startswith("| edge |") or ln.startswith("| gripper |")
+    ]
+    assert len(rows) >= len(data["targets"])
+    target_rows = rows[: len(data["targets"])]
+    for row in target_rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[-1] in ("PASS", "FAIL", "report")
+
+
+def test_figures_written(out_dir: Path) -> None:
+    pngs = sorted(p.name for p in out_dir.glob("*.png"))
+    for name in (
+        "edge_trajectory.png",
+        "edge_x_time.png",
+        "edge_contact.png",
+        "edge_sticking.png",
+        "edge_friction.png",
+        "gripper_com.png",
+        "gripper_yaw.png",
+        "gripper_friction.png",
+        "gripper_hypotheses.png",
+    ):
+        assert name in pngs
+        assert (out_dir / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_arguments_exit_2(tmp_path: Path) -> None:
+    assert main(["--out", str(tmp_path), "--scenarios", "nope", "--quiet"]) == 2
+    assert not list(tmp_path.iterdir())

@@ -1,0 +1,115 @@
+"""Runtime API on the dds backend: backend choice, timers, sim time, logging, graph."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+from dbcslam_ros.errors import RuntimeBackendError
+
+from dbcslam_ros import runtime as rt
+
+pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
+
+
+def _select(value: str) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, DBCSLAM_RUNTIME=value)
+    code = "from dbcslam_ros import runtime as rt; print(rt.BACKEND)"
+    return subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
+    )
+
+
+def test_backend_selection_by_env(monkeypatch) -> None:
+    assert _select("dds").stdout.strip() == "dds"
+    forced = _select("rclpy")
+    assert forced.returncode != 0
+    assert "DBCSLAM_RUNTIME=rclpy but rclpy cannot be imported" in forced.stderr
+    monkeypatch.setenv("DBCSLAM_RUNTIME", "zenoh")
+    with pytest.raises(RuntimeBackendError, match="expected 'rclpy' or 'dds'"):
+        rt.select_backend()
+
+
+def test_node_requires_init() -> None:
+    rt.try_shutdown()
+    with pytest.raises(RuntimeBackendError, match="init"):
+        rt.Node("early")
+
+
+def test_timer_fires_at_its_period(rt_context) -> None:
+    node = rt_context("timed")
+    stamps: list[float] = []
+    timer = node.create_timer(0.02, lambda: stamps.append(time.monotonic()))
+    assert rt.spin_until(node, lambda: len(stamps) >= 6, 5.0)
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
+    assert min(gaps) > 0.01  # never bursts
+    timer.cancel()
+    n = len(stamps)
+    rt.spin_until(node, lambda: len(stamps) > n, 0.1)
+    assert len(stamps) == n
+
+
+def test_spin_once_times_out_without_work(rt_context) -> None:
+    node = rt_context("idle")
+    t0 = time.monotonic()
+    rt.spin_once(node, timeout_sec=0.05)
+    assert 0.04 <= time.monotonic() - t0 < 1.0
+
+
+def test_shutdown_makes_spin_raise(rt_context) -> None:
+    node = rt_context("stopper")
+    node.create_timer(0.01, rt.shutdown)
+    with pytest.raises(rt.ExternalShutdownException):
+        rt.spin(node)
+    assert not rt.ok()
+
+
+def test_sim_time_follows_clock_topic(rt_context) -> None:
+    node = rt_context("sim", ("--ros-args", "-p", "use_sim_time:=true"))
+    clock_cls = rt.message_class("rosgraph_msgs/msg/Clock")
+    time_cls = rt.message_class("builtin_interfaces/msg/Time")
+    pub = node.create_publisher(clock_cls, "/clock", rt.qos_profile("clock"))
+    assert node.get_clock().now().nanoseconds == 0
+    assert rt.spin_until(node, lambda: pub.get_subscription_count() >= 1, 5.0)
+    pub.publish(clock_cls(clock=time_cls(sec=12, nanosec=500)))
+    assert rt.spin_until(node, lambda: node.get_clock().now().nanoseconds > 0, 5.0)
+    now = node.get_clock().now()
+    assert now.nanoseconds == 12_000_000_500
+    assert (now.to_msg().sec, now.to_msg().nanosec) == (12, 500)
+
+
+def test_wall_clock_by_default(rt_context) -> None:
+    node = rt_context("wall")
+    assert abs(node.get_clock().now().nanoseconds - time.time_ns()) < 1e9
+
+
+def test_logging_format_and_throttle(rt_context, capsys) -> None:
+    node = rt_context("talky", namespace="/ns")
+    logged = [node.get_logger().info("tick", throttle_duration_sec=10.0) for _ in range(3)]
+    node.get_logger().warning("careful")
+    node.get_logger().debug("hidden")
+    err = capsys.readouterr().err
+    assert logged == [True, False, False]
+    assert err.count("[INFO]") == 1 and "[ns.talky]: tick" in err
+    assert "[WARN]" in err and "careful" in err
+    assert "hidden" not in err
+
+
+def test_graph_discovers_topics_that_appear_later(rt_context, node_process) -> None:
+    node = rt_context("observer")
+    assert "/chatter" not in dict(rt.get_topic_names_and_types(node))
+    talker = node_process("dbcslam_ros.demo_nodes", "talker")
+    assert rt.spin_until(
+        node, lambda: "/chatter" in dict(rt.get_topic_names_and_types(node)), 10.0
+    ), talker.log()
+    topics = dict(rt.get_topic_names_and_types(node))
+    assert topics["/chatter"] == ["std_msgs/msg/String"]
+    (info,) = rt.get_publishers_info(node, "/chatter")
+    assert info.qos_profile == rt.qos_profile("default")
+    assert info.node_name == "talker"
+    talker.terminate()
+    assert rt.spin_until(node, lambda: not rt.get_publishers_info(node, "/chatter"), 10.0)
