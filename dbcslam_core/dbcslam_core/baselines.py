@@ -112,7 +112,10 @@ class NCPFilterConfig:
     noise std per step and dof (m, m[, rad]); None = ``default_noise`` of the scenario kind
     (position noise default 0). switch_prob: per-step probability that a particle redraws a
     friction pair's candidate index from the prior (regime switching). init_velocity_std: std (m/s,
-    rad/s) of the initial velocity spread around zero (vx, vy, omega). ess_threshold: resample when
+    rad/s) of the initial velocity spread around zero (vx, vy, omega). warmup_steps /
+    warmup_boost: as in DBC-SLAM's FilterConfig, the process noise is inflated by a factor
+    decaying linearly from 1 + warmup_boost to 1 over the first steps (unknown initial
+    velocity). ess_threshold: resample when
     ESS < ess_threshold * P. pgs_max_iter / pgs_tol: PGS settings for ``solver="pgs"``.
     proposal: ``bootstrap`` (sample the noise from the prior, weigh by the likelihood) or
     ``optimal`` (the same closed-form Gaussian proposal as DBC-SLAM around the LCP solution).
@@ -126,6 +129,8 @@ class NCPFilterConfig:
     init_velocity_std: tuple[float, float, float] = (1.0, 1.0, 3.0)
     ess_threshold: float = 0.5
     resampler: str = "systematic"
+    warmup_steps: int = 30
+    warmup_boost: float = 10.0
     pgs_max_iter: int = 100
     pgs_tol: float = 1e-8
     proposal: str = "bootstrap"
@@ -252,6 +257,7 @@ class BlackBoxNCPFilter:
         self.log_w: F64 = np.zeros(0)
         self.env_prev: F64 = np.zeros(len(scenario.joints))
         self.n_steps = 0
+        self.n_prop = 0
         self.initialized = False
         self.failed_solves = 0
 
@@ -285,6 +291,7 @@ class BlackBoxNCPFilter:
         self.v = vm + vs * self.rng.standard_normal((n, self.nq))
         self.fric = self._draw_friction(n)
         self.log_w = np.full(n, -math.log(n))
+        self.n_prop = 0
         if joints is not None:
             self.env_prev = np.asarray(joints, dtype=np.float64).reshape(-1)
         self.initialized = True
@@ -366,13 +373,18 @@ class BlackBoxNCPFilter:
             self.fric = np.where(switch, self._draw_friction(self.fric.shape[0]), self.fric)
         res, ok = self._simulate(u, joints)
         self.env_prev = joints
+        self.n_prop += 1
+        boost = 1.0
+        if self.config.warmup_steps > 0:
+            frac = 1.0 - (self.n_prop - 1) / self.config.warmup_steps
+            boost += self.config.warmup_boost * max(0.0, frac)
         dt = self.scenario.dt
         n = self.q.shape[0]
         log_inc = np.zeros(n)
         if self.config.proposal == "optimal" and lin is not None:
-            e_v, e_q, log_inc = self._optimal_noise(res, lin)
+            e_v, e_q, log_inc = self._optimal_noise(res, lin, boost)
         else:
-            e_v = self.sigma_v * self.rng.standard_normal((n, self.nq))
+            e_v = boost * self.sigma_v * self.rng.standard_normal((n, self.nq))
             e_q = self.sigma_q * self.rng.standard_normal((n, self.nq))
         v_new = res.v + e_v
         q_new = res.q + dt * e_v + e_q
@@ -396,8 +408,11 @@ class BlackBoxNCPFilter:
         self.n_steps += 1
         return est
 
-    def _optimal_noise(self, res: StepResult, lin: LinearObservation) -> tuple[F64, F64, F64]:
-        pt = proposal_terms(self.q, res.v, self.scenario.dt, self.sigma_v, lin, self.sigma_q)
+    def _optimal_noise(
+        self, res: StepResult, lin: LinearObservation, boost: float
+    ) -> tuple[F64, F64, F64]:
+        sig_v = boost * self.sigma_v
+        pt = proposal_terms(self.q, res.v, self.scenario.dt, sig_v, lin, sigma_q=self.sigma_q)
         e_v, e_q = sample_noise(pt, pt.innovation, pt.v_mean, self.scenario.dt, self.rng)
         return e_v, e_q, pt.log_pred
 

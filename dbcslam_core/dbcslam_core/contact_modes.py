@@ -75,6 +75,10 @@ class ReducedSolution:
     v_next (..., nv) post-step velocity; ln, lt (..., C) normal / tangential impulses (N s);
     gap_rate (..., C) = phi/dt + Jn v' - vn_env (m/s); vt (..., C) = Jt v' - vt_env (m/s);
     score (...) = sum of squared scaled inequality violations (0 = all inequalities hold).
+    response (..., nv, nv): d v_next / d v_free, the linear map through which a perturbation
+    of the free velocity (e.g. force noise) reaches v_next under this mode assignment
+    (identity when every contact is separated; constrained directions are absorbed by the
+    impulses, sliding friction follows the normal impulse).
     """
 
     v_next: FloatArray
@@ -83,6 +87,7 @@ class ReducedSolution:
     gap_rate: FloatArray
     vt: FloatArray
     score: FloatArray
+    response: FloatArray
 
 
 def solve_reduced(
@@ -154,6 +159,7 @@ def solve_reduced(
     ln = np.zeros((*lead, n_c))
     lt = np.zeros((*lead, n_c))
     dv = np.zeros((*lead, nv))
+    response = np.broadcast_to(np.eye(nv), (*lead, nv, nv))
     if n_a:
         w = np.concatenate([jn_a[..., act, :], jt_a[..., act, :]], axis=-2)  # (.., 2Ca, nv)
         wm = w * im[..., None, :]
@@ -177,14 +183,26 @@ def solve_reduced(
         an_b = np.broadcast_to(an, (*lead, n_c))[..., act]
         at_b = np.broadcast_to(at, (*lead, n_c))[..., act]
         rhs = np.concatenate([np.where(~sep, -an_b, 0.0), np.where(stick, -at_b, 0.0)], -1)
+        # columns 1..nv: sensitivity of the impulses to a perturbation of v_free
+        jn_act = np.broadcast_to(jn_a[..., act, :], (*lead, n_a, nv))
+        jt_act = np.broadcast_to(jt_a[..., act, :], (*lead, n_a, nv))
+        sens = np.concatenate(
+            [np.where(~sep[..., None], -jn_act, 0.0), np.where(stick[..., None], -jt_act, 0.0)],
+            axis=-2,
+        )
+        rhs_all = np.concatenate([rhs[..., None], sens], axis=-1)  # (.., 2Ca, 1 + nv)
         try:
-            lam = np.linalg.solve(amat, rhs[..., None])[..., 0]
+            sol_all = np.linalg.solve(amat, rhs_all)
         except np.linalg.LinAlgError as err:
             msg = f"reduced dynamics system is singular for {int(np.prod(lead))} assignments"
             raise SolverError(msg) from err
+        lam = sol_all[..., 0]
         ln[..., act] = lam[..., :n_a]
         lt[..., act] = lam[..., n_a:]
         dv = im * np.einsum("...iv,...i->...v", w, lam)
+        response = np.eye(nv) + im[..., :, None] * np.einsum(
+            "...iv,...ij->...vj", w, sol_all[..., 1:]
+        )
     v_next = np.broadcast_to(vf, (*lead, nv)) + dv
     gap_rate = np.einsum("...cv,...v->...c", jn_a, v_next) - vne + phi_a / dt
     vt = np.einsum("...cv,...v->...c", jt_a, v_next) - vte
@@ -209,7 +227,9 @@ def solve_reduced(
         onehot = (g[:, None] == np.unique(g)[None, :]).astype(np.float64)  # (C, G)
         lt_g = np.einsum("...c,cg->...g", np.where(stick_all, lt, 0.0), onehot)
         cap_g = np.einsum("...c,cg->...g", np.where(stick_all, mu_b * ln, 0.0), onehot)
-        mag_g = np.einsum("...c,cg->...g", np.where(stick_all, mag - sc.impulse_floor, 0.0), onehot)
+        mag_g = np.einsum(
+            "...c,cg->...g", np.where(stick_all, mag - sc.impulse_floor, 0.0), onehot
+        )
         i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
         cone_sq = np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
     score = (
@@ -223,6 +243,7 @@ def solve_reduced(
         gap_rate=np.asarray(gap_rate, dtype=np.float64),
         vt=np.asarray(vt, dtype=np.float64),
         score=np.asarray(score, dtype=np.float64),
+        response=np.asarray(response, dtype=np.float64),
     )
 
 

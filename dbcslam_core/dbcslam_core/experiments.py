@@ -119,7 +119,8 @@ class RunTrace:
     map_edges (N + 1,) / map_post (N, K) / map_weight (N,): final friction map of pair 0
     (posterior NaN in never-touched cells; weight = accumulated contact evidence; None if the
     method has no map); rough_intervals: high-friction spans along the edge (m); edge_y:
-    the edge line (m).
+    the edge line (m); baseline_q / baseline_label: optional estimate of a baseline drawn
+    next to this run in the figures.
     """
 
     scenario: str
@@ -148,6 +149,7 @@ class RunTrace:
     edge_y: float | None = None
     n_joint_modes: int | None = None
     baseline_q: F64 | None = None
+    baseline_label: str = "fixed-friction baseline"
 
 
 @dataclass(frozen=True)
@@ -424,6 +426,8 @@ def run_black_box(
             process_noise=tuple(base.process_noise[:nq]),
             position_noise=tuple(base.position_noise[:nq]),
             init_velocity_std=base.init_velocity_std,
+            warmup_steps=base.warmup_steps,
+            warmup_boost=base.warmup_boost,
         )
     filt = BlackBoxNCPFilter(tr.scenario, config, np.random.default_rng([seed, 3]))
     return run_filter(

@@ -28,12 +28,16 @@ import numpy.typing as npt
 from dbcslam_core.errors import ModelError
 
 __all__ = [
+    "GaussianProposal",
     "JointSmoother",
     "LinearObservation",
     "PoseObservation",
     "PoseObservationModel",
     "ProposalTerms",
+    "gaussian_log_density",
+    "gaussian_proposal",
     "proposal_terms",
+    "sample_gaussian_proposal",
     "sample_noise",
     "wrap_angle",
 ]
@@ -146,6 +150,7 @@ def proposal_terms(
     dt: float,
     sigma_v: npt.ArrayLike,
     obs: LinearObservation | None,
+    *,
     sigma_q: npt.ArrayLike | None = None,
 ) -> ProposalTerms:
     """Optimal proposal for v' = v_next + e_v, q' = q + dt v' + e_q (module docstring).
@@ -252,3 +257,126 @@ class JointSmoother:
         p = p - k[:, :, None] * p[:, None, 0, :]
         self.x, self.p = x, p
         return np.asarray(x[:, 0].copy(), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class GaussianProposal:
+    """Optimal proposal with a full velocity-noise covariance per hypothesis.
+
+    Model: v' = v_h + e_v, e_v ~ N(0, cov_v) (cov_v (..., nv, nv), e.g. force noise pushed
+    through the reduced dynamics of hypothesis h); q' = q + dt v' + e_q, e_q ~ N(0,
+    diag(sigma_q^2)); o = q'[index] + r. Fields: log_pred (...) = log p(o | h);
+    innovation (..., nq) (zero on unobserved dims); v_mean (..., nv) and v_cov (..., nv, nv):
+    the Gaussian posterior of v' given o and h; q_gain, q_std, observed (nq,): the position
+    noise posterior e_q | v', o ~ N(q_gain (y - dt (v' - v_h)), q_std^2) on observed dims.
+    """
+
+    log_pred: FloatArray
+    innovation: FloatArray
+    v_mean: FloatArray
+    v_cov: FloatArray
+    q_gain: FloatArray
+    q_std: FloatArray
+    observed: BoolArray
+
+
+def gaussian_proposal(
+    q: npt.ArrayLike,
+    v_h: npt.ArrayLike,
+    cov_v: npt.ArrayLike,
+    dt: float,
+    obs: LinearObservation | None,
+    *,
+    sigma_q: npt.ArrayLike | None = None,
+) -> GaussianProposal:
+    """Closed-form optimal proposal (Kalman form) for a batch of hypotheses.
+
+    q (..., nq), v_h (..., nv), cov_v (..., nv, nv) broadcast together (nv == nq). Uses batched
+    np.linalg.solve / cholesky on the (D x D) innovation covariances, no explicit inverse.
+    """
+    qa = np.asarray(q, dtype=np.float64)
+    vh = np.asarray(v_h, dtype=np.float64)
+    sv = np.asarray(cov_v, dtype=np.float64)
+    nq = vh.shape[-1]
+    sq = np.zeros(nq) if sigma_q is None else np.asarray(sigma_q, dtype=np.float64)
+    lead = np.broadcast_shapes(qa.shape[:-1], vh.shape[:-1], sv.shape[:-2])
+    vh = np.broadcast_to(vh, (*lead, nq))
+    sv = np.broadcast_to(sv, (*lead, nq, nq))
+    innov = np.zeros((*lead, nq))
+    q_gain = np.zeros(nq)
+    q_std = sq.copy()
+    observed = np.zeros(nq, dtype=np.bool_)
+    if obs is None:
+        return GaussianProposal(
+            np.zeros(lead), innov, vh.copy(), sv.copy(), q_gain, q_std, observed
+        )
+    idx = obs.index
+    n_d = idx.size
+    observed[idx] = True
+    s_o = dt * dt * sv[..., idx, :][..., :, idx] + np.diag(sq[idx] ** 2 + obs.var)
+    pred = qa[..., idx] + dt * vh[..., idx]
+    y = obs.residual(pred)
+    innov[..., idx] = y
+    c = dt * sv[..., :, idx]  # cov(v', o) (..., nv, D)
+    rhs = np.concatenate([y[..., None], np.swapaxes(c, -1, -2)], axis=-1)  # (..., D, 1 + nv)
+    x = np.linalg.solve(s_o, rhs)
+    chol = np.linalg.cholesky(s_o)
+    logdet = 2.0 * np.sum(np.log(np.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
+    maha = np.sum(y * x[..., 0], axis=-1)
+    log_pred = -0.5 * (maha + logdet + n_d * _LOG_2PI)
+    v_mean = vh + np.einsum("...vd,...d->...v", c, x[..., 0])
+    v_cov = sv - np.einsum("...vd,...dw->...vw", c, x[..., 1:])
+    r_q = sq[idx] ** 2 + obs.var
+    q_gain[idx] = sq[idx] ** 2 / r_q
+    q_std[idx] = np.sqrt(sq[idx] ** 2 * obs.var / r_q)
+    return GaussianProposal(
+        np.asarray(log_pred, dtype=np.float64),
+        innov,
+        np.asarray(v_mean, dtype=np.float64),
+        np.asarray(v_cov, dtype=np.float64),
+        q_gain,
+        q_std,
+        observed,
+    )
+
+
+def sample_gaussian_proposal(
+    prop: GaussianProposal,
+    v_h: npt.ArrayLike,
+    innovation: npt.ArrayLike,
+    v_mean: npt.ArrayLike,
+    v_cov: npt.ArrayLike,
+    dt: float,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """Draw (v', e_q) (N, nq) for the chosen hypotheses (rows of prop's arrays).
+
+    v' ~ N(v_mean, v_cov) via a jittered Cholesky factor; then e_q | v' on observed dims.
+    """
+    vm = np.asarray(v_mean, dtype=np.float64)
+    cov = np.asarray(v_cov, dtype=np.float64)
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    scale = np.maximum(np.max(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), axis=-1), 1e-300)
+    jitter = 1e-12 * scale[..., None, None] * np.eye(vm.shape[-1])
+    chol = np.linalg.cholesky(cov + jitter)
+    v_new = vm + np.einsum("...ij,...j->...i", chol, rng.standard_normal(vm.shape))
+    y = np.asarray(innovation, dtype=np.float64)
+    r = y - dt * (v_new - np.asarray(v_h, dtype=np.float64))
+    q_mean = np.where(prop.observed, prop.q_gain * r, 0.0)
+    e_q = q_mean + prop.q_std * rng.standard_normal(vm.shape)
+    return np.asarray(v_new, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
+
+
+def gaussian_log_density(x: npt.ArrayLike, cov: npt.ArrayLike) -> FloatArray:
+    """log N(x; 0, cov) for x (..., n), cov (..., n, n) (batched solve + Cholesky)."""
+    xa = np.asarray(x, dtype=np.float64)
+    ca = np.asarray(cov, dtype=np.float64)
+    lead = np.broadcast_shapes(xa.shape[:-1], ca.shape[:-2])
+    n = xa.shape[-1]
+    xa = np.broadcast_to(xa, (*lead, n))
+    ca = np.broadcast_to(ca, (*lead, n, n))
+    sol = np.linalg.solve(ca, xa[..., None])[..., 0]
+    chol = np.linalg.cholesky(ca)
+    logdet = 2.0 * np.sum(np.log(np.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
+    out = -0.5 * (np.sum(xa * sol, axis=-1) + logdet + n * _LOG_2PI)
+    return np.asarray(out, dtype=np.float64)

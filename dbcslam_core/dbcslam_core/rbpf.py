@@ -38,8 +38,9 @@ from dbcslam_core.observation import (
     LinearObservation,
     PoseObservation,
     PoseObservationModel,
-    proposal_terms,
-    sample_noise,
+    gaussian_log_density,
+    gaussian_proposal,
+    sample_gaussian_proposal,
     wrap_angle,
 )
 from dbcslam_core.parameters import (
@@ -69,23 +70,31 @@ _LOG_2PI = math.log(2.0 * math.pi)
 class FilterConfig:
     """Configuration of `DbcSlamFilter` (SI units).
 
-    particles: number of particles P. ess_threshold: resample when ESS < ess_threshold * P.
-    prune_threshold: per-contact modes and normalised joint hypotheses below this probability
-    are pruned. max_hypotheses: cap of joint mode hypotheses per particle.
-    parameter_model / contact_weight / free_weight: eq. (7) form and its weight w on the
-    posterior (w = free_weight + (contact_weight - free_weight) * P(pair in contact)).
-    process_noise: std of the velocity noise per step for (vx, vy, omega) (m/s, m/s, rad/s);
-    a point mass uses the first two. position_noise: std of an additional position noise per
-    step (m, m, rad). warmup_steps / warmup_boost: during the first warmup_steps steps the
-    process noise is inflated by a factor decaying linearly from 1 + warmup_boost to 1 (the
-    initial velocity is unobserved; this lets the cloud lock onto it). violation_impulse (dimensionless, relative to the contact's
-    impulse magnitude) and violation_velocity (m/s): scales of the inequality violations of
-    the reduced dynamics (contact_modes.ViolationScales). resampler: key of RESAMPLERS. frozen_friction:
-    candidate index used for every pair (fixed-friction filter) or None to estimate friction.
-    init_*: initial spread around the first observation (None = the observation noise).
-    map_range (m), map_cell (m): the grid of the friction map over the contact coordinate s;
-    map_lag: fixed lag (steps) of the smoothed friction committed to the map.
-    joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint readings.
+    * particles: number of particles P; ess_threshold: resample when ESS < ess_threshold * P;
+      resampler: key of RESAMPLERS.
+    * prune_threshold: per-contact modes and normalised joint hypotheses below this
+      probability are pruned; max_hypotheses: cap of joint mode hypotheses per particle.
+    * parameter_model / contact_weight / free_weight: eq. (7) form and its weight w on the
+      posterior, w = free_weight + (contact_weight - free_weight) * P(pair in contact).
+    * process_noise: std of the velocity noise per step for (vx, vy, omega) (m/s, m/s, rad/s;
+      a point mass uses the first two); position_noise: std of an additional position noise
+      per step (m, m, rad). The velocity noise is force noise passed through the response map
+      of each mode hypothesis (contact impulses absorb it in constrained directions) plus
+      constrained_noise (variance fraction) of isotropic noise.
+    * warmup_steps / warmup_boost: during the first warmup_steps steps the process noise is
+      inflated by a factor decaying linearly from 1 + warmup_boost to 1 (the initial velocity
+      is unobserved; this lets the cloud lock onto it).
+    * transition: softened NCP transition parameters; violation_impulse (dimensionless,
+      relative to the contact's impulse magnitude) and violation_velocity (m/s): scales of
+      the inequality violations of the reduced dynamics (contact_modes.ViolationScales).
+    * frozen_friction: candidate index used for every pair (fixed-friction filter), or None
+      to estimate friction.
+    * init_position_std (m), init_yaw_std (rad): initial spread around the first observation
+      (None = the observation noise); init_velocity_std: (m/s, m/s, rad/s).
+    * map_range (m), map_cell (m): grid of the friction map over the contact coordinate s;
+      map_lag: fixed lag (steps) of the smoothed friction committed to the map.
+    * joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint
+      readings.
     """
 
     particles: int = 500
@@ -97,6 +106,7 @@ class FilterConfig:
     free_weight: float = 0.0
     process_noise: tuple[float, float, float] = (0.01, 0.01, 0.5)
     position_noise: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
+    constrained_noise: float = 0.05
     warmup_steps: int = 30
     warmup_boost: float = 10.0
     transition: TransitionParams = field(default_factory=TransitionParams)
@@ -117,7 +127,7 @@ class FilterConfig:
             msg = f"particles must be >= 1, got {self.particles}"
             raise ModelError(msg)
         if not 0.0 <= self.ess_threshold <= 1.0:
-            msg = f"ess_threshold must be in [0, 1] (fraction of particles), got {self.ess_threshold}"
+            msg = f"ess_threshold must be in [0, 1] (fraction of P), got {self.ess_threshold}"
             raise ModelError(msg)
         if not 0.0 <= self.prune_threshold < 1.0:
             msg = f"prune_threshold must be in [0, 1), got {self.prune_threshold}"
@@ -431,9 +441,9 @@ class DbcSlamFilter:
         )
         modes_k = hyp.modes  # (P, K, C)
         n_k = modes_k.shape[1]
-        gathered = np.take_along_axis(
-            pred[:, None], modes_k[:, :, None, :, None], axis=-1
-        )[..., 0]  # (P, K, B, C)
+        gathered = np.take_along_axis(pred[:, None], modes_k[:, :, None, :, None], axis=-1)[
+            ..., 0
+        ]  # (P, K, B, C)
         with np.errstate(divide="ignore"):
             lp = np.log(gathered).sum(axis=-1)
         lp = np.where(hyp.valid[:, :, None], lp, -np.inf)
@@ -457,33 +467,42 @@ class DbcSlamFilter:
         l_cond = l_cond - _logsumexp(l_cond, axis=1)[:, None, :]
         with np.errstate(divide="ignore"):
             log_alpha = np.log(self.fric)[:, None, :] + l_cond  # (P, K, B)
-        # 5. optimal proposal
+        # 5. optimal proposal. Process noise is force noise: a perturbation e of the free
+        # velocity reaches v' through the response map of the hypothesis (constrained
+        # directions are absorbed by the contact impulses), plus a small isotropic part.
         boost = 1.0
         if cfg.warmup_steps > 0:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
-        sigma_v = self._sigma_v * boost
-        terms = proposal_terms(self.q[:, None, None, :], v_h, dt, sigma_v, lin, self._sigma_q)
-        log_joint = log_alpha + terms.log_pred
+        sig2 = (self._sigma_v * boost) ** 2
+        resp = sol.response  # (P, K, B, nv, nv)
+        cov_h = np.einsum("...ij,j,...kj->...ik", resp, sig2, resp) + cfg.constrained_noise * (
+            np.diag(sig2)
+        )
+        prop = gaussian_proposal(
+            self.q[:, None, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
+        )
+        log_joint = log_alpha + prop.log_pred
         incr = _logsumexp(log_joint, axis=(1, 2))  # (P,)
         flat = log_joint.reshape(n_p, -1)
         gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
         k_star, b_star = np.unravel_index(pick, (n_k, self.n_b))
         rows = np.arange(n_p)
-        e_v, e_q = sample_noise(
-            terms,
-            terms.innovation[rows, k_star, b_star],
-            terms.v_mean[rows, k_star, b_star],
+        v_new, e_q = sample_gaussian_proposal(
+            prop,
+            v_h[rows, k_star, b_star],
+            prop.innovation[rows, k_star, b_star],
+            prop.v_mean[rows, k_star, b_star],
+            prop.v_cov[rows, k_star, b_star],
             dt,
             self.rng,
         )
-        v_new = v_h[rows, k_star, b_star] + e_v
         q_new = self.q + dt * v_new + e_q
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
         # 6. closed-form discrete posterior given the sampled continuous state
-        dv = (v_new[:, None, None, :] - v_h) / sigma_v
-        log_post = log_alpha - 0.5 * np.sum(dv * dv, axis=-1)
+        log_post = log_alpha + gaussian_log_density(v_new[:, None, None, :] - v_h, cov_h)
+        log_post = np.where(np.isfinite(log_alpha), log_post, -np.inf)
         log_post = log_post - _logsumexp(log_post, axis=(1, 2))[:, None, None]
         post = np.exp(log_post)  # (P, K, B)
         fric_post = post.sum(axis=1)  # (P, B)
@@ -496,9 +515,7 @@ class DbcSlamFilter:
         p_k = post.sum(axis=2)  # (P, K)
         pair_in = np.stack(
             [
-                np.einsum(
-                    "pk,pk->p", p_k, np.max(in_c[:, :, self._contact_pair == pr], axis=2)
-                )
+                np.einsum("pk,pk->p", p_k, np.max(in_c[:, :, self._contact_pair == pr], axis=2))
                 if np.any(self._contact_pair == pr)
                 else np.zeros(n_p)
                 for pr in range(self.n_pairs)
@@ -508,7 +525,13 @@ class DbcSlamFilter:
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
         fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
         # 7. eq. (7): predictive friction belief for the next step
-        self.fric = self._predict_friction(fric_post, fric_pair, pair_in)
+        if self._step <= cfg.warmup_steps:
+            # warm-up: wrong initial velocities are still being weeded out, and collisions
+            # of those particles would bias the friction belief -> hold it at the prior.
+            self.fric = np.tile(self._prior_b, (n_p, 1))
+            fric_pair = self._pair_marginals(self.fric)
+        else:
+            self.fric = self._predict_friction(fric_post, fric_pair, pair_in)
         self.modes = modes_post
         # 8. weights, marginal likelihood, map history, resampling
         w_prev, _ = normalise_log_weights(self.log_w)
@@ -543,15 +566,15 @@ class DbcSlamFilter:
             resampled = True
             # estimate with the pre-resampling weights (lower variance)
         return self._estimate(
-            estimate_w,
-            q_new,
-            v_new,
-            marg_post,
-            fric_pair,
-            ess,
-            float(hyp.n_live.mean()),
-            log_ml,
-            resampled,
+            w=estimate_w,
+            q=q_new,
+            v=v_new,
+            marg_post=marg_post,
+            fric_pair=fric_pair,
+            ess=ess,
+            live=float(hyp.n_live.mean()),
+            log_ml=log_ml,
+            resampled=resampled,
         )
 
     # ------------------------------------------------------------------------ helpers
@@ -618,6 +641,7 @@ class DbcSlamFilter:
 
     def _estimate(
         self,
+        *,
         w: FloatArray,
         q: FloatArray,
         v: FloatArray,

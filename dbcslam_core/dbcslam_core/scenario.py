@@ -7,6 +7,7 @@ layout is the one of the interface contract::
     dt: 0.01                  # s
     gravity: 9.81             # m/s^2
     body: {mass: 1.0, inertia: 0.0, shape: point}   # kg, kg m^2, point | polygon
+                              # (polygon without inertia: uniform density about the origin)
     vertices: []              # polygon only: [[x, y], ...] body frame about the CoM, m
     contacts: [edge]          # potential contacts, order of /dbcslam/contact_modes dim 0
     friction: {pairs: [edge], candidates: [0.3, 0.9], prior: [0.5, 0.5]}
@@ -155,6 +156,21 @@ def _signed_area(verts: Sequence[tuple[float, float]]) -> float:
         _cross(verts[i][0], verts[i][1], verts[(i + 1) % n][0], verts[(i + 1) % n][1])
         for i in range(n)
     )
+
+
+def _uniform_inertia(verts: Sequence[tuple[float, float]], mass: float) -> float:
+    """Polar moment (kg m^2) about the origin of a uniform polygon of `mass`."""
+    n = len(verts)
+    area2 = 0.0
+    acc = 0.0
+    for i in range(n):
+        (x0, y0), (x1, y1) = verts[i], verts[(i + 1) % n]
+        cr = _cross(x0, y0, x1, y1)
+        area2 += cr
+        acc += cr * (x0 * x0 + x0 * x1 + x1 * x1 + y0 * y0 + y0 * y1 + y1 * y1)
+    if area2 == 0.0:
+        raise _fail(f"scenario key 'vertices' is degenerate (zero area): {list(verts)}")
+    return mass * acc / (6.0 * area2)
 
 
 def _normalise_polygon(verts: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
@@ -518,12 +534,12 @@ class Scenario:
             if not isinstance(v, list | tuple) or len(v) != 2:
                 raise _fail(f"scenario key 'vertices[{i}]' must be [x, y], got {v!r}")
             verts.append((_float(v[0], f"vertices[{i}][0]"), _float(v[1], f"vertices[{i}][1]")))
-        body = Body(
-            mass=_float(body_m["mass"], "body.mass", positive=True),
-            inertia=_float(body_m.get("inertia", 0.0), "body.inertia", nonneg=True),
-            shape=shape,
-            vertices=tuple(verts),
-        )
+        mass = _float(body_m["mass"], "body.mass", positive=True)
+        if "inertia" in body_m or shape == "point" or len(verts) < 3:
+            inertia = _float(body_m.get("inertia", 0.0), "body.inertia", nonneg=True)
+        else:  # polygon without inertia: uniform density about the body origin
+            inertia = abs(_uniform_inertia(verts, mass))
+        body = Body(mass=mass, inertia=inertia, shape=shape, vertices=tuple(verts))
         fr = _mapping(data["friction"], "friction")
         _check_keys(fr, ["pairs", "candidates", "prior", "obstacles"], "friction")
         for key in ("pairs", "candidates"):

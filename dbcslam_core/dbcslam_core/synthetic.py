@@ -242,9 +242,14 @@ def gripper_trajectory(
 ) -> Trajectory:
     """Paper Fig. 4 trajectory: triangle rattling between closing jaws, ends grasped.
 
-    Jaws start 0.12 m apart and close at constant speed to the triangle's height plus a
-    small margin; a time-varying force and moment (N, N m) make the triangle approach the
-    lower jaw first while rotating and moving in +x, then rattle.
+    Jaws start 0.12 m apart and close (smoothly, over 75 % of `duration`) to the triangle's
+    smallest width plus 0.4 %; they are compliant (`simulate` with `grip_force_limit`, N):
+    a step that would jam the body or exceed the grip force holds the jaws still. Inputs
+    (N, N m, world frame at the centre of mass): an intro phase pushes the triangle down onto
+    the lower jaw while sliding +x and turning its lowest edge flat (vertex, then sliding edge
+    contact); a rattle phase of periodic force and moment drives it between the jaws (vertex
+    and edge contacts, stick-slip); the final phase fades the force out and applies a steady
+    moment that wedges the triangle between both jaws (grasped, sticking).
     """
     sc = scenario if scenario is not None else gripper_scenario()
     gen = rng if rng is not None else np.random.default_rng(seed)
@@ -271,9 +276,29 @@ def gripper_trajectory(
     env = np.stack([centre - opening / 2.0, centre + opening / 2.0], -1)
     m = sc.body.mass
     a = float(np.max(np.linalg.norm(verts, axis=1)))
-    fx = m * 0.186 * jitter[0] * np.cos(2.0 * math.pi * t / (1.39 * jitter[1]))
-    fy = m * (-0.75 * jitter[2] + 1.75 * np.sin(2.0 * math.pi * t / (1.70 * jitter[3])) ** 2)
-    tau = m * a * (0.076 + 0.32 * jitter[4] * np.sin(2.0 * math.pi * t / (0.95 * jitter[5])))
+    # phase 1 (intro): down onto the lower jaw, sliding +x, turning the lowest edge flat
+    intro = 1.0 - _smoothstep(t, 0.7, 0.9)
+    # phase 3 (hold): the force fades out, a steady moment wedges the body between the jaws
+    hold = _smoothstep(t, 0.72 * duration, 0.8 * duration)
+    rattle = (1.0 - intro) * (1.0 - hold)
+    tr = t - 0.8
+    fx = m * (
+        intro * 0.35 * jitter[0]
+        + rattle * 0.186 * jitter[0] * np.cos(2.0 * math.pi * tr / (1.39 * jitter[1]))
+    )
+    fy = m * (
+        intro * -0.6 * jitter[2]
+        + rattle * (-0.75 * jitter[2] + 1.75 * np.sin(2.0 * math.pi * tr / (1.7 * jitter[3])) ** 2)
+    )
+    tau = (
+        m
+        * a
+        * (
+            intro * -0.15 * jitter[4]
+            + rattle * (0.076 + 0.32 * jitter[4] * np.sin(2.0 * math.pi * tr / (0.95 * jitter[5])))
+            + hold * 0.3
+        )
+    )
     u = np.stack([fx, fy, tau], -1)
     q0 = (0.0, 0.0, 0.376)
     v0 = (0.02, -0.05, 0.0)

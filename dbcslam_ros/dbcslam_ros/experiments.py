@@ -188,7 +188,12 @@ def write_outputs(
                     from dbcslam_core.metrics import position_rmse
 
                     best = min(fixed, key=lambda t: position_rmse(t.est_q[:, :2], t.true_q[:, :2]))
-                    trace = dataclasses.replace(trace, baseline_q=best.est_q)
+                    mu = best.method.removeprefix("fixed_mu_")
+                    trace = dataclasses.replace(
+                        trace,
+                        baseline_q=best.est_q,
+                        baseline_label=f"fixed friction mu = {mu} (better of the two)",
+                    )
                 paths += save_edge_figures(trace, out_dir)
             else:
                 paths += save_gripper_figures(trace, out_dir)

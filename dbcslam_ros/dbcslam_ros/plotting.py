@@ -21,9 +21,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from dbcslam_core.experiments import RunTrace
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+    from dbcslam_core.experiments import RunTrace
 
 __all__ = [
     "plot_contact_probability",
@@ -63,6 +64,10 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), stops.tolist(), strict=True))
 
 
+def _wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
 def shade_mask(ax: Axes, t: ArrayLike, mask: ArrayLike, label: str | None = None) -> None:
     """Shade the time spans (axis x) where ``mask`` is True; spans reach half a step each side."""
     tv = np.asarray(t, dtype=float)
@@ -94,6 +99,7 @@ def plot_trajectory_xy(
     rough_x: Sequence[tuple[float, float]] = (),
     edge_y: float | None = None,
     baseline_xy: ArrayLike | None = None,
+    baseline_label: str = "fixed-friction baseline",
     title: str = "Trajectory",
 ) -> None:
     """x-y trajectory: truth (dashed), observations (dots), estimate (solid); rough x shaded."""
@@ -109,7 +115,7 @@ def plot_trajectory_xy(
     ax.plot(est[:, 0], est[:, 1], **EST_STYLE)
     if baseline_xy is not None:
         b = np.asarray(baseline_xy, dtype=float)
-        ax.plot(b[:, 0], b[:, 1], **BASE_STYLE)
+        ax.plot(b[:, 0], b[:, 1], **{**BASE_STYLE, "label": baseline_label})
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title)
@@ -129,6 +135,7 @@ def plot_value_vs_time(
     ylabel: str = "x [m]",
     title: str = "",
     baseline: ArrayLike | None = None,
+    baseline_label: str = "fixed-friction baseline",
 ) -> None:
     """A scalar (e.g. x or yaw) over time: truth, observations, estimate; optional shaded mask."""
     tv = np.asarray(t, dtype=float)
@@ -139,7 +146,7 @@ def plot_value_vs_time(
     ax.plot(tv, np.asarray(truth, dtype=float), **TRUTH_STYLE)
     ax.plot(tv, np.asarray(est, dtype=float), **EST_STYLE)
     if baseline is not None:
-        ax.plot(tv, np.asarray(baseline, dtype=float), **BASE_STYLE)
+        ax.plot(tv, np.asarray(baseline, dtype=float), **{**BASE_STYLE, "label": baseline_label})
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -332,6 +339,7 @@ def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge"
         rough_x=rough,
         edge_y=tr.edge_y,
         baseline_xy=None if base is None else base[:, :2],
+        baseline_label=tr.baseline_label,
         title=f"Edge: point-mass trajectory (seed {tr.seed})",
     )
     paths.append(_save(fig, out / f"{prefix}_trajectory.png"))
@@ -348,6 +356,7 @@ def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge"
         ylabel="x [m]",
         title="Edge: x over time (true sticking shaded)",
         baseline=None if base is None else base[:, 0],
+        baseline_label=tr.baseline_label,
     )
     paths.append(_save(fig, out / f"{prefix}_x_time.png"))
 
@@ -428,13 +437,14 @@ def save_gripper_figures(
     paths.append(_save(fig, out / f"{prefix}_com.png"))
 
     fig, ax = _new()
+    yaw_true = np.unwrap(tr.true_q[:, 2])
     plot_value_vs_time(
         ax,
         tr.t,
-        tr.true_q[:, 2],
-        tr.obs_q[:, 2],
-        tr.est_q[:, 2],
-        ylabel="yaw [rad]",
+        yaw_true,
+        yaw_true + _wrap(tr.obs_q[:, 2] - yaw_true),
+        yaw_true + _wrap(tr.est_q[:, 2] - yaw_true),
+        ylabel="yaw (unwrapped) [rad]",
         title="Gripper: orientation over time",
     )
     paths.append(_save(fig, out / f"{prefix}_yaw.png"))

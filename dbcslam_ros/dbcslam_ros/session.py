@@ -179,6 +179,21 @@ class FilterSession:
         self.steps += n_steps
         return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started)]
 
+    # -- introspection --------------------------------------------------------------------
+    def particles(self) -> tuple[np.ndarray, np.ndarray]:
+        """Particle configurations q (P, nq) and normalised weights (P,) (for markers)."""
+        flt = self._filter
+        assert flt is not None
+        if getattr(flt, "q", None) is None:
+            return np.zeros((0, self.scenario.nq)), np.zeros(0)
+        log_w = np.asarray(flt.log_w, dtype=np.float64)
+        w = np.exp(log_w - np.max(log_w))
+        return np.asarray(flt.q, dtype=np.float64), w / np.sum(w)
+
+    def last_joints(self) -> tuple[float, ...]:
+        """Latest joint positions received (scenario.joints order), () if none."""
+        return self._joints.values[-1] if self._joints.values else ()
+
     # -- control --------------------------------------------------------------------------
     def reset(self) -> None:
         """Forget all state (new particles from the next pose); counters survive."""

@@ -42,7 +42,6 @@ class Truth:
 
     pose: FloatArray
     twist: FloatArray
-    wrench: FloatArray
     joints: FloatArray
     pusher_wrench: FloatArray
     modes: FloatArray
@@ -99,6 +98,24 @@ class Simulation(ABC):
     def _build(self, cid: int) -> None:
         """Create bodies and set the initial state."""
 
+    def input_wrench(self, t: float) -> FloatArray:
+        """Known applied wrench (fx, fy, tau) on the body during the physics step at t (s).
+
+        N, N, N m, world frame, tau about the centre of mass. Zero unless overridden.
+        """
+        return np.zeros(3)
+
+    def mean_input_wrench(self, t: float) -> FloatArray:
+        """Mean applied wrench over the sample interval [t, t + 1/rate) (what is recorded).
+
+        The exact impulse the physics delivers over the interval divided by its length, so a
+        discrete model stepping from t uses it as its input u.
+        """
+        p: SimParams = self.params
+        steps = p.steps_per_sample
+        samples = np.stack([self.input_wrench(t + s * p.physics_dt) for s in range(steps)])
+        return np.asarray(samples.mean(axis=0), dtype=np.float64)
+
     @abstractmethod
     def _apply(self, cid: int, t: float) -> None:
         """Set the inputs (forces, motor targets) for the physics step starting at t (s)."""
@@ -147,7 +164,7 @@ class Simulation(ABC):
                     pose=pose,
                     twist=truth.twist,
                     observed_pose=obs,
-                    wrench=truth.wrench,
+                    wrench=self.mean_input_wrench(t),
                     joints=truth.joints,
                     observed_joints=obs_joints,
                     pusher_wrench=truth.pusher_wrench,

@@ -41,6 +41,9 @@ SEPARATED, STICKING, SLIDING_POS, SLIDING_NEG = 0, 1, 2, 3
 class BulletClient:
     """A pybullet DIRECT client configured for stiff, Coulomb-like contact.
 
+    Two-direction (pyramid) friction, no restitution, 'contactSlop' 0: pybullet otherwise
+    leaves a steady 10 um penetration in resting contacts, which makes a squeezed body look
+    jammed (negative gaps on both jaws) to a rigid time-stepping model.
     physics_dt: s. gravity: world-frame gravity vector (m/s^2). solver_iterations: constraint
     solver iterations per step. Use as a context manager (disconnects on exit).
     """
@@ -68,6 +71,7 @@ class BulletClient:
             restitutionVelocityThreshold=10.0,
             enableConeFriction=0,
             deterministicOverlappingPairs=1,
+            contactSlop=0.0,
             physicsClientId=cid,
         )
 

@@ -97,8 +97,9 @@ class EdgeSimulation(Simulation):
         chain.reset(cid, p.start, p.start_velocity)
         self._chain = chain
 
-    def _force(self, t: float) -> np.ndarray:
-        return interpolate_keyframes(self.params.force, t)
+    def input_wrench(self, t: float) -> np.ndarray:
+        f = interpolate_keyframes(self.params.force, t)
+        return np.array([f[0], f[1], 0.0])
 
     def _apply(self, cid: int, t: float) -> None:
         assert self._chain is not None
@@ -107,7 +108,7 @@ class EdgeSimulation(Simulation):
         if mu != self._mu:
             pb.changeDynamics(self._edge, -1, lateralFriction=mu, physicsClientId=cid)
             self._mu = mu
-        self._chain.apply(cid, self._force(t))
+        self._chain.apply(cid, self.input_wrench(t)[:2])
 
     def _measure(self, cid: int, t: float) -> Truth:
         assert self._chain is not None
@@ -120,11 +121,9 @@ class EdgeSimulation(Simulation):
         )
         # n = (0, 1) -> t = (1, 0): the tangential relative velocity is vx (edge is static)
         modes = mode_onehot(fn, float(v[0]), p.contact_force_threshold, p.slip_threshold)
-        f = self._force(t)
         return Truth(
             pose=np.array([q[0], q[1], 0.0]),
             twist=np.array([v[0], v[1], 0.0]),
-            wrench=np.array([f[0], f[1], 0.0]),
             joints=np.zeros(0),
             pusher_wrench=np.zeros(3),
             modes=modes[None, :],

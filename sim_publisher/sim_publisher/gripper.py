@@ -6,13 +6,17 @@ frictionless support). Its lateral friction is 1, the jaws' is `jaw_mu`, so the 
 coefficient is `jaw_mu`. The jaws are two prismatic-y links of one fixed-base body: the lower
 jaw's face (normal +y) is at y = joint `lower_jaw`, the upper jaw's face (normal -y) at
 y = joint `upper_jaw`. Each jaw is position controlled towards a target closing at
-`jaw_speed` with at most `jaw_force`, so the jaws stop on the object and squeeze it. A
+`jaw_speed` with at most `jaw_force`, so the jaws stop on the object and squeeze it (joint
+damping removes the common drift two equally saturated jaws would otherwise keep). A
 time-varying force and moment at the centroid (the known input u) make the triangle rattle
-between the jaws before the grasp is secure.
+between the jaws before the grasp is secure. pybullet inflates the prism by a collision
+margin; the jaw faces are retracted by the measured margin, so a vertex touches a jaw exactly
+when it reaches the jaw's joint position.
 
 Truth: potential contacts `v{i}_{jaw}` (vertex i of the outline, jaw in lower, upper; jaw
-major order, as `dbcslam_core.scenario.Scenario.default_contacts`); pybullet contact points
-are attributed to the nearest vertex; n = (0, 1), t = (1, 0) for the lower jaw and
+major order, as `dbcslam_core.scenario.Scenario.default_contacts`); the normal force of each
+pybullet contact point is split between the two vertices of the outline edge it lies on, by
+its position along the edge (a vertex contact goes wholly to its vertex); n = (0, 1), t = (1, 0) for the lower jaw and
 n = (0, -1), t = (-1, 0) for the upper jaw; the tangential relative velocity is the vertex
 velocity along t (jaws move along y only). One friction pair `jaws`.
 """
@@ -45,6 +49,7 @@ JAWS: tuple[str, ...] = ("lower", "upper")
 _JAW_HALF_LENGTH = 0.25  # m, along x
 _JAW_HALF_THICKNESS = 0.01  # m, along y
 _JAW_MASS = 0.5  # kg
+_JAW_DAMPING = 20.0  # N s/m: damps the common drift of two force-limited jaws after the grasp
 _POSITION_GAIN = 0.1
 _VELOCITY_GAIN = 1.0
 
@@ -146,7 +151,7 @@ class GripperSimulation(Simulation):
         self._jaw_body = body
         for j, start in enumerate((p.lower_start, p.upper_start)):
             set_material(cid, body, j, p.jaw_mu)
-            pb.changeDynamics(body, j, jointDamping=0.0, physicsClientId=cid)
+            pb.changeDynamics(body, j, jointDamping=_JAW_DAMPING, physicsClientId=cid)
             pb.resetJointState(body, j, start, 0.0, physicsClientId=cid)
 
     def jaw_targets(self, t: float) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -163,7 +168,7 @@ class GripperSimulation(Simulation):
                 out.append((target, 0.0))
         return out[0], out[1]
 
-    def _wrench(self, t: float) -> np.ndarray:
+    def input_wrench(self, t: float) -> np.ndarray:
         return interpolate_keyframes(self.params.wrench, t)
 
     def _apply(self, cid: int, t: float) -> None:
@@ -181,7 +186,7 @@ class GripperSimulation(Simulation):
                 force=p.jaw_force,
                 physicsClientId=cid,
             )
-        self._chain.apply(cid, self._wrench(t))
+        self._chain.apply(cid, self.input_wrench(t))
 
     def _measure(self, cid: int, t: float) -> Truth:
         assert self._chain is not None
@@ -214,7 +219,6 @@ class GripperSimulation(Simulation):
         return Truth(
             pose=q.copy(),
             twist=v.copy(),
-            wrench=self._wrench(t),
             joints=np.array([jaw_states[0][0], jaw_states[1][0]]),
             pusher_wrench=np.zeros(3),
             modes=modes,

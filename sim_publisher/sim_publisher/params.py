@@ -41,6 +41,7 @@ __all__ = [
     "equilateral_triangle",
     "load_params",
     "params_class",
+    "params_to_dict",
 ]
 
 SCENARIO_NAMES: tuple[str, ...] = ("edge", "gripper", "push")
@@ -610,3 +611,21 @@ def load_params(
     except TypeError as err:
         msg = f"params {where} (scenario {scenario}): {err}"
         raise ParamError(msg) from err
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, NoiseParams):
+        return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    return value
+
+
+def params_to_dict(params: ScenarioParams) -> dict[str, Any]:
+    """The params as a section mapping ``{scenario: {key: value}}`` (YAML-ready, lists).
+
+    `load_params(scenario, params_to_dict(p))` gives back `p`.
+    """
+    name = next(k for k, c in _CLASSES.items() if type(params) is c)
+    body = {f.name: _plain(getattr(params, f.name)) for f in dataclasses.fields(params)}
+    return {name: body}

@@ -257,7 +257,6 @@ class PushSimulation(Simulation):
         return Truth(
             pose=np.array([com[0], com[1], yaw]),
             twist=np.array([v_com[0], v_com[1], omega]),
-            wrench=np.zeros(3),
             joints=qp.copy(),
             pusher_wrench=np.array([force_on_pusher[0], force_on_pusher[1], 0.0]),
             modes=modes[None, :],

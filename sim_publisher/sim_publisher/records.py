@@ -30,8 +30,10 @@ class SimRecord:
     """Everything sampled at time `t` (s, simulation time from 0).
 
     pose, twist: true (x, y, yaw) and (vx, vy, omega). observed_pose: pose plus Gaussian
-    noise (a point mass reports yaw 0 without noise). wrench: the known applied wrench u at t
-    (fx, fy, tau) acting on the body. joints / observed_joints: true and noisy joint
+    noise (a point mass reports yaw 0 without noise). wrench: the known applied wrench u
+    (fx, fy, tau) on the body, averaged over [t, t + 1/rate): the input of a discrete model
+    step from t to the next sample (zero in `push`, whose input is the pusher motion).
+    joints / observed_joints: true and noisy joint
     positions in the order of `SimRun.joint_names` (m). pusher_wrench /
     observed_pusher_wrench: force the object exerts on the pusher (fx, fy, tau), true and
     with sensor noise (zeros outside `push`). modes: (C, 4) one-hot true mode per potential

@@ -212,3 +212,27 @@ def test_enumerate_hypotheses_prunes_and_orders() -> None:
     hyp3 = enumerate_hypotheses(marg3, 1e-3, 64, layout=layout)
     live = hyp3.modes[0][hyp3.valid[0]]
     assert not np.any(np.all(live[:, :3] != 0, axis=1))
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_response_is_derivative_of_reduced_solution(mode: Mode) -> None:
+    model = PlanarModel(GRIPPER)
+    rng = np.random.default_rng(int(mode))
+    q = np.array([0.0, 0.02, 0.3])
+    kin = contact_kinematics(GRIPPER, q, np.array([-0.05, 0.05]))
+    q[1] -= float(np.min(kin.phi[:3]))
+    modes = np.zeros(6, dtype=np.int64)
+    modes[int(np.argmin(kin.phi[:3]))] = mode
+    env = np.array([-0.05, 0.05])
+
+    def reduced(v: np.ndarray):  # type: ignore[no-untyped-def]
+        return _reduced(model, q, v, np.zeros(3), env, env, np.full(6, 0.4), modes)
+
+    v0 = rng.normal(size=3) * 0.1
+    base = reduced(v0)
+    dvf = rng.normal(size=3) * 1e-3
+    # v_free = v + dt F / m: perturbing v perturbs v_free by the same amount
+    moved = reduced(v0 + dvf)
+    np.testing.assert_allclose(moved.v_next - base.v_next, base.response @ dvf, atol=1e-10)
+    if mode == Mode.SEPARATED:
+        np.testing.assert_allclose(base.response, np.eye(3), atol=1e-12)

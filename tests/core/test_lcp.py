@@ -180,3 +180,13 @@ def test_solve_batch_matches_single() -> None:
     zb = LemkeSolver().solve_batch(a, b)
     for i in range(4):
         assert np.allclose(zb[i], LemkeSolver().solve(a[i], b[i]))
+
+
+def test_lemke_pivot_cap() -> None:
+    rng = np.random.default_rng(7)
+    a = _pd(rng, 8, skew=False)
+    b = -np.abs(rng.normal(size=8)) - 1.0
+    with pytest.raises(SolverError, match="pivots"):
+        LemkeSolver(max_pivots=1, regularization=()).solve(a, b)
+    z = LemkeSolver().solve(a, b)
+    assert lcp_residuals(a, b, z).worst <= LEMKE_TOL * 10

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import ModelError
 from dbcslam_core.metrics import (
@@ -17,8 +20,6 @@ from dbcslam_core.metrics import (
     wrap_angle,
     yaw_rmse,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 
 def one_hot(modes: np.ndarray) -> np.ndarray:

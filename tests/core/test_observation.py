@@ -40,7 +40,7 @@ def test_proposal_matches_joint_gaussian_conditioning() -> None:
     lin = m.linearize(PoseObservation(0.013, -0.004))
     q = np.array([0.0, 0.0])
     vh = np.array([1.0, -0.5])
-    t = proposal_terms(q, vh, dt, np.full(2, sv), lin, np.full(2, sq))
+    t = proposal_terms(q, vh, dt, np.full(2, sv), lin, sigma_q=np.full(2, sq))
     # joint covariance of (e_v, e_q, o) for one dimension
     cov = np.array(
         [
@@ -74,7 +74,7 @@ def test_sample_noise_moments_and_prediction_only() -> None:
     lin = PoseObservationModel(2, 0.01).linearize(PoseObservation(0.02, 0.0))
     sv = np.array([0.5, 0.5])
     sq = np.array([0.001, 0.001])
-    t = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, lin, sq)
+    t = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, lin, sigma_q=sq)
     rng = np.random.default_rng(1)
     n = 200_000
     e_v, e_q = sample_noise(
@@ -85,7 +85,7 @@ def test_sample_noise_moments_and_prediction_only() -> None:
     p = dt**2 * sv[0] ** 2 + sq[0] ** 2
     assert q_next[:, 0].mean() == pytest.approx(p / (p + 1e-4) * 0.02, rel=0.02)
     assert q_next[:, 0].var() == pytest.approx(p * 1e-4 / (p + 1e-4), rel=0.02)
-    t0 = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, None, sq)
+    t0 = proposal_terms(np.zeros(2), np.zeros(2), dt, sv, None, sigma_q=sq)
     assert float(t0.log_pred) == 0.0
     np.testing.assert_allclose(t0.v_std, sv)
     np.testing.assert_allclose(t0.q_std, sq)

@@ -7,6 +7,8 @@ from typing import Any
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dbcslam_core.errors import ScenarioError
 from dbcslam_core.scenario import (
@@ -205,3 +207,47 @@ def test_triangle_is_centred() -> None:
     assert sum(v[1] for v in verts) == pytest.approx(0.0, abs=1e-15)
     sides = [math.dist(verts[i], verts[(i + 1) % 3]) for i in range(3)]
     assert sides == pytest.approx([0.06] * 3)
+
+
+def test_polygon_inertia_defaults_to_uniform_density() -> None:
+    d = gripper_scenario().to_dict()
+    del d["body"]["inertia"]
+    sc = Scenario.from_dict(d)
+    assert sc.body.inertia == pytest.approx(gripper_scenario().body.inertia)
+
+
+_JUNK = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-3, 3),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=6),
+    st.lists(st.floats(-1, 1), max_size=4),
+    st.lists(st.lists(st.floats(-1, 1), max_size=3), max_size=4),
+    st.dictionaries(st.text(max_size=6), st.floats(-1, 1), max_size=3),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    kind=st.sampled_from(["edge", "gripper", "push"]),
+    data=st.data(),
+    value=_JUNK,
+)
+def test_fuzzed_scenarios_raise_only_scenario_error(
+    kind: str, data: st.DataObject, value: Any
+) -> None:
+    """Any mutation of a valid scenario either validates or raises ScenarioError."""
+    base = {
+        "edge": edge_scenario(),
+        "gripper": gripper_scenario(),
+        "push": push_scenario(SQUARE, mass=0.8),
+    }[kind].to_dict()
+    paths: list[list[str]] = [[k] for k in base]
+    paths += [[k, kk] for k, v in base.items() if isinstance(v, dict) for kk in v]
+    path = data.draw(st.sampled_from(paths))
+    try:
+        sc = Scenario.from_dict(_mutate(base, path, value))
+    except ScenarioError:
+        return
+    assert Scenario.from_yaml(sc.to_yaml()) == sc

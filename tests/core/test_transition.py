@@ -38,7 +38,7 @@ def test_soft_modes_follow_gap_and_slip() -> None:
     assert lifting[Mode.SEPARATED] > 0.99
     sliding = soft_modes(np.array([0.0]), np.array([-0.1]), np.array([0.5]), DT, P)[0]
     assert sliding[Mode.SLIDING_POS] > 0.8
-    assert sliding[Mode.SLIDING_NEG] >= P.slide_floor * (1 - sliding[0]) - 1e-12
+    assert sliding[Mode.SLIDING_NEG] > 0.5 * P.slide_floor
     back = soft_modes(np.array([0.0]), np.array([-0.1]), np.array([-0.5]), DT, P)[0]
     assert back[Mode.SLIDING_NEG] > 0.8
 

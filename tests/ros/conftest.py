@@ -265,6 +265,7 @@ def build_ours(name: str, tree: dict[str, Any]) -> Any:
 def build_rosbags(name: str, tree: dict[str, Any]) -> Any:
     """rosbags message object of a value tree (numpy arrays for numeric arrays/sequences)."""
     import numpy as np
+
     from dbcslam_ros.runtime.typestore import get_typestore
 
     store = get_typestore()

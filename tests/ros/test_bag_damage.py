@@ -220,3 +220,50 @@ def test_bag_can_be_named_by_directory_or_metadata_file(
     good_bag: Path, make: Callable[[Path], Any]
 ) -> None:
     assert len(read_bag(make(good_bag))) == N
+
+
+@pytest.mark.parametrize("kind", ["missing", "truncated", "corrupt_chunk", "empty_file"])
+def test_play_of_a_bad_bag_fails_with_2_before_any_dds_work(
+    kind: str, tmp_path: Path, good_bag: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, named = _bad(kind, tmp_path, good_bag)
+    assert main(["play", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert named in err[0]
+
+
+def test_play_of_a_bag_without_messages_is_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with BagWriter(tmp_path / "nothing") as writer:
+        writer.add_topic("/chatter", "std_msgs/msg/String")
+    assert main(["play", str(tmp_path / "nothing")]) == 2
+    assert "no messages" in capsys.readouterr().err
+    # bag info of the same bag is fine: it reports zero messages.
+    code, out, _ = _info([str(tmp_path / "nothing")], capsys)
+    assert code == 0
+    assert "Messages:          0" in out
+
+
+def test_play_of_an_unknown_topic_names_it(
+    good_bag: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["play", str(good_bag), "--topics", "/nope"]) == 2
+    err = capsys.readouterr().err
+    assert "/nope" in err
+    assert "/chatter" in err
+
+
+def test_bag_info_of_a_directory_of_bags_reports_each(
+    tmp_path: Path, good_bag: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    many = tmp_path / "many"
+    many.mkdir()
+    shutil.copytree(good_bag, many / "a")
+    shutil.copytree(good_bag, many / "b")
+    code, out, err = _info([str(many)], capsys)
+    assert code == 0, err
+    assert f"== {many / 'a'} ==" in out
+    assert f"== {many / 'b'} ==" in out
+    assert out.count(f"Messages:          {N}") == 2

@@ -310,3 +310,44 @@ def test_salvage_of_any_truncation_yields_a_prefix_of_the_written_messages(
     assert [m.data for m in part.messages] == [m.data for m in full.messages[:complete]]
     if cut < len(data):
         assert part.damage is not None
+
+
+def test_bag_written_by_rosbags_writer_reads_back(tmp_path: Path) -> None:
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    string = _types()["std_msgs/msg/String"]
+    with Writer(tmp_path / "rb", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection(
+            "/scenario",
+            "std_msgs/msg/String",
+            typestore=jazzy_typestore(),
+            offered_qos_profiles=[LATCHED_QOS],
+        )
+        for i in range(5):
+            writer.write(conn, 10 + i, serialize(string(data=f"s{i}"))[1])
+    with open_bag(tmp_path / "rb") as bag:
+        assert [bag.decode(m).data for m in bag.messages()] == [f"s{i}" for i in range(5)]
+        assert bag.topics()["/scenario"].offered_qos == (LATCHED_QOS,)
+
+
+def test_zstd_compressed_chunks_read_and_salvage_whole_chunks(tmp_path: Path) -> None:
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+
+    string = _types()["std_msgs/msg/String"]
+    path = tmp_path / "z.mcap"
+    payloads = [serialize(string(data=f"zstd {i:04d}" + "q" * 40))[1] for i in range(200)]
+    with path.open("wb") as fh:
+        writer = McapWriter(fh, chunk_size=1024, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema("std_msgs/msg/String", "ros2msg", b"string data\n")
+        channel = writer.register_channel("/z", "cdr", schema, {"offered_qos_profiles": ""})
+        for i, data in enumerate(payloads):
+            writer.add_message(channel, log_time=i, data=data, publish_time=i)
+        writer.finish()
+    assert [m.data for m in read_bag(path)] == payloads
+    data = path.read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
+    got = [m.data for m in read_bag(tmp_path / "cut.mcap", salvage=True)]
+    assert 0 < len(got) < len(payloads)
+    assert got == payloads[: len(got)]

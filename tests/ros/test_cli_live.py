@@ -18,8 +18,11 @@ from typing import Any
 
 import pytest
 import yaml
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
 
-from dbcslam_ros.bag import open_bag
+from dbcslam_ros.bag import jazzy_typestore, open_bag
 from dbcslam_ros.bag.metadata import load_metadata
 
 HELPER = '''
@@ -179,7 +182,18 @@ def test_record_then_play_delivers_every_message_in_order_with_same_bytes(
     # 2. Play it to a fresh subscriber: same bytes, same order, /scenario latched again.
     sub = node_process("h2_cli_helper", "sub", str(COUNT), str(received), env=helper_env)
     assert sub.wait_for_log("ready", 30), sub.log()
-    play = node_process("dbcslam_ros.cli", "play", str(bag), "--rate", "4", "--delay", "1.0")
+    play = node_process(
+        "dbcslam_ros.cli",
+        "play",
+        str(bag),
+        "--rate",
+        "4",
+        "--delay",
+        "2.0",
+        "--topics",
+        "/scenario",
+        "/chatter",
+    )
     assert _wait(play, 60) == 0, play.log()
     assert _wait(sub, 60) == 0, sub.log()
     assert _hex_lines(received) == sent
@@ -210,6 +224,21 @@ def test_sigterm_closes_the_bag_with_every_received_message(
     sent = _hex_lines(published)
     # What was recorded is a gap-free run of what was published, from the first message.
     assert recorded == sent[: len(recorded)]
+    # The recorder's bag opens in the independent readers too.
+    with AnyReader([bag], default_typestore=jazzy_typestore()) as reader:
+        assert [bytes(raw) for c, _, raw in reader.messages() if c.topic == "/chatter"] == (
+            recorded
+        )
+    with next(bag.glob("*.mcap")).open("rb") as fh:
+        decoded = [
+            obj.data
+            for _, channel, _, obj in make_reader(
+                fh, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages()
+            if channel.topic == "/chatter"
+        ]
+    assert decoded[:3] == ["chatter 00000 ", "chatter 00001 z", "chatter 00002 zz"]
+    assert len(decoded) == len(recorded)
 
 
 def test_topic_echo_prints_yaml_documents_and_list_shows_types(

@@ -6,13 +6,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from dbcslam_ros.errors import MessageTypeError
-from dbcslam_ros.runtime import dds_messages
-from dbcslam_ros.runtime.typestore import get_typestore
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.errors import MessageTypeError
+from dbcslam_ros.runtime import dds_messages
+from dbcslam_ros.runtime.typestore import get_typestore
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="generated classes: dds backend")
 
@@ -31,6 +31,7 @@ def test_random_values_roundtrip_and_match_rosbags(
     wire = rt.encode(ours)
     assert wire == expected
     assert rt.decode(wire, name) == ours
+    assert dds_messages.cdr_length(wire + b"\0\0\0", name) == len(wire)
     assert rt.from_rosbags(build_rosbags(name, tree)) == ours
     assert store.serialize_cdr(rt.to_rosbags(ours), name) == expected
 
@@ -56,6 +57,16 @@ def test_classes_have_ros_shape_and_constants() -> None:
     )
 
 
+def test_scalar_byte_accepts_rclpy_and_rosbags_spelling() -> None:
+    status_cls = rt.message_class("diagnostic_msgs/msg/DiagnosticStatus")
+    assert status_cls(level=b"\x02").level == status_cls.ERROR == 2
+    assert rt.encode(status_cls(level=b"\x01")) == rt.encode(status_cls(level=status_cls.WARN))
+    assert status_cls(level=-1).level == 255  # rosbags' signed spelling, same bits
+    store = get_typestore()
+    theirs = store.types["diagnostic_msgs/msg/DiagnosticStatus"](-1, "n", "m", "h", [])
+    assert rt.from_rosbags(theirs) == status_cls(level=255, name="n", message="m", hardware_id="h")
+
+
 def test_numpy_arrays_are_accepted_for_array_fields() -> None:
     pose = rt.message_class("geometry_msgs/msg/PoseWithCovarianceStamped")()
     pose.pose.covariance = np.eye(6).ravel()
@@ -71,6 +82,8 @@ def test_cdr_length_strips_dds_padding(msgvals: Any) -> None:
     for name in msgvals.types:
         data = rt.encode(msgvals.build_ours(name, msgvals.random_tree(name, rng)))
         assert dds_messages.cdr_length(data + b"\0" * 3, name) == len(data)
+        with pytest.raises(MessageTypeError, match="too short"):
+            dds_messages.cdr_length(data[:-1], name)
 
 
 def test_bad_inputs_raise_message_type_error() -> None:

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+
 from dbcslam_ros.experiments import main
 
 
@@ -58,3 +59,18 @@ def test_figures_written(out_dir: Path) -> None:
 def test_bad_arguments_exit_2(tmp_path: Path) -> None:
     assert main(["--out", str(tmp_path), "--scenarios", "nope", "--quiet"]) == 2
     assert not list(tmp_path.iterdir())
+
+
+def test_bench_smoke(tmp_path: Path) -> None:
+    from dbcslam_ros.bench import main as bench_main
+
+    argv = ["--out", str(tmp_path), "--particles", "4,6", "--steps", "6", "--warmup", "1"]
+    argv += ["--lemke-max", "4", "--accuracy-particles", "0", "--scenarios", "edge", "--quiet"]
+    assert bench_main(argv) == 0
+    data = json.loads((tmp_path / "bench.json").read_text())
+    rows = data["scaling"]
+    assert [r["particles"] for r in rows] == [4, 6]
+    assert rows[0]["blackbox_lemke_ms"] is not None
+    assert rows[1]["blackbox_lemke_ms"] is None  # above --lemke-max: not run
+    assert all(r["dbcslam_ms"] > 0 for r in rows)
+    assert "| edge | 4 |" in (tmp_path / "bench.md").read_text()

@@ -7,11 +7,12 @@ import os
 import subprocess
 import sys
 import time
+import types
 
 import pytest
-from dbcslam_ros.errors import RuntimeBackendError
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.errors import RuntimeBackendError
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 
@@ -113,3 +114,37 @@ def test_graph_discovers_topics_that_appear_later(rt_context, node_process) -> N
     assert info.node_name == "talker"
     talker.terminate()
     assert rt.spin_until(node, lambda: not rt.get_publishers_info(node, "/chatter"), 10.0)
+
+
+def test_auto_selects_rclpy_when_importable(monkeypatch) -> None:
+    monkeypatch.delenv("DBCSLAM_RUNTIME", raising=False)
+    monkeypatch.setitem(sys.modules, "rclpy", types.ModuleType("rclpy"))
+    assert rt.select_backend() == "rclpy"
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # import rclpy -> ImportError
+    assert rt.select_backend() == "dds"
+
+
+def test_sim_time_timer_follows_clock_not_wall_time(rt_context) -> None:
+    node = rt_context("simtimer", ("--ros-args", "-p", "use_sim_time:=true"))
+    clock_cls = rt.message_class("rosgraph_msgs/msg/Clock")
+    time_cls = rt.message_class("builtin_interfaces/msg/Time")
+    pub = node.create_publisher(clock_cls, "/clock", rt.qos_profile("clock"))
+    fired: list[int] = []
+    node.create_timer(1.0, lambda: fired.append(node.get_clock().now().nanoseconds))
+    assert rt.spin_until(node, lambda: pub.get_subscription_count() >= 1, 5.0)
+    rt.spin_until(node, lambda: bool(fired), 0.3)
+    assert fired == []  # 0.3 s of wall time is not 1 s of sim time
+    for sec in (1, 2, 3):
+        pub.publish(clock_cls(clock=time_cls(sec=sec)))
+        assert rt.spin_until(node, lambda s=sec: len(fired) >= s, 5.0)
+    assert fired == [1_000_000_000, 2_000_000_000, 3_000_000_000]
+
+
+def test_reliable_publisher_waits_for_acks(rt_context) -> None:
+    node = rt_context("acks")
+    string_cls = rt.message_class("std_msgs/msg/String")
+    pub = node.create_publisher(string_cls, "/acks", rt.qos_profile("default"))
+    node.create_subscription(string_cls, "/acks", lambda _m: None, rt.qos_profile("default"))
+    assert rt.spin_until(node, lambda: pub.get_subscription_count() == 1, 5.0)
+    pub.publish(string_cls(data="x"))
+    assert pub.wait_for_all_acked(rt.Duration(seconds=2.0))

@@ -6,10 +6,10 @@ import ipaddress
 import re
 
 import pytest
-from dbcslam_ros.errors import UsageError
-from dbcslam_ros.runtime import dds_config
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.errors import UsageError
+from dbcslam_ros.runtime import dds_config
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from dbcslam_ros.errors import ParameterError, UsageError
-from dbcslam_ros.runtime.ros_args import parse_ros_args
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.errors import ParameterError, UsageError
+from dbcslam_ros.runtime.ros_args import parse_ros_args
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 
@@ -110,3 +110,13 @@ def test_bad_ros_args_raise_usage_error(tmp_path) -> None:
         "a",
         "b",
     ]
+
+
+def test_node_cli_args_win_over_process_args(rt_context) -> None:
+    node = rt_context(
+        "base",
+        ("--ros-args", "-p", "gain:=1.0"),
+        cli_args=["--ros-args", "-p", "gain:=2.0", "-r", "__node:=local"],
+    )
+    assert node.get_name() == "local"
+    assert node.declare_parameter("gain", 0.0).value == 2.0

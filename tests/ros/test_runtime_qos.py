@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 
 import pytest
-from dbcslam_ros.errors import UsageError
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.errors import UsageError
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 
@@ -92,3 +92,16 @@ def test_latched_message_reaches_late_subscriber_in_other_process(
     )
     assert rt.spin_until(node, lambda: bool(got), 5.0), talker.log()
     assert got == ["push_demo"]
+
+
+def test_adapted_subscription_qos_follows_publishers() -> None:
+    def info(q: rt.QoSProfile) -> rt.EndpointInfo:
+        return rt.EndpointInfo("n", "/", "std_msgs/msg/String", "PUBLISHER", q)
+
+    latched, sensor = rt.qos_profile("latched"), rt.qos_profile("sensor_data")
+    assert rt.adapted_subscription_qos([info(latched)], depth=7) == rt.make_qos(
+        "reliable", "transient_local", "keep_last", 7
+    )
+    mixed = rt.adapted_subscription_qos([info(latched), info(sensor)])
+    assert (mixed.reliability, mixed.durability) == ("best_effort", "volatile")
+    assert rt.adapted_subscription_qos([]).reliability == "reliable"

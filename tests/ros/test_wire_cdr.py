@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from dbcslam_ros.runtime.typestore import get_typestore
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.runtime.typestore import get_typestore
 
 pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 
@@ -92,3 +92,24 @@ def test_raw_publish_of_rosbags_bytes_decodes_to_equal_message(rt_context, msgva
     pub.publish(data)
     assert rt.spin_until(node, lambda: bool(got), 5.0)
     assert got == [build_ours(name, tree)]
+
+
+def test_raw_subscription_normalizes_cyclone_c_padding_header(rt_context) -> None:
+    # Cyclone's C serializer pads samples to 4 bytes and records the pad count in the
+    # encapsulation options; raw subscribers must still get exactly serialize_cdr's bytes.
+    node = rt_context("wire_pad")
+    name = "std_msgs/msg/String"
+    expected = bytes(
+        get_typestore().serialize_cdr(get_typestore().types[name](data="abcde"), name)
+    )
+    pad = -len(expected) % 4
+    assert pad  # the case under test
+    c_style = expected[:3] + bytes([pad]) + expected[4:] + b"\0" * pad
+    got: list[bytes] = []
+    qos = rt.qos_profile("default")
+    pub = rt.create_raw_publisher(node, name, "/wire/pad", qos)
+    rt.create_raw_subscription(node, name, "/wire/pad", got.append, qos)
+    assert rt.spin_until(node, lambda: pub.get_subscription_count() >= 1, 5.0)
+    pub.publish(c_style)
+    assert rt.spin_until(node, lambda: bool(got), 5.0)
+    assert got == [expected]

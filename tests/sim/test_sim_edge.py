@@ -106,3 +106,17 @@ def test_static_friction_holds_below_the_cone_and_yields_above() -> None:
     assert above["pose"][-1, 0] < -0.005
     mode = np.argmax(above["modes"][:, 0], axis=1)
     assert np.count_nonzero(mode == SLIDING_NEG) > 40
+
+
+def test_recorded_wrench_is_the_input_of_the_next_interval(edge_run: SimRun) -> None:
+    """In free flight m (v[k+1] - v[k]) / dt = u[k] + m g exactly: u[k] is the mean input."""
+    arr = edge_run.stack()
+    p = edge_run.params
+    mode = _mode(edge_run)
+    free = np.flatnonzero((mode[:-1] == SEPARATED) & (mode[1:] == SEPARATED))
+    free = free[arr["t"][free] > 4.8]  # after the lift-off near the right end
+    assert len(free) > 30
+    dt = 1.0 / p.rate
+    acc = (arr["twist"][free + 1, :2] - arr["twist"][free, :2]) / dt
+    expected = arr["wrench"][free, :2] / p.mass + np.array([0.0, -p.gravity])
+    assert np.max(np.abs(acc - expected)) < 1e-6

@@ -39,7 +39,8 @@ def test_gripper_ends_grasped_by_both_jaws(gripper_run: SimRun) -> None:
     assert np.all(np.any(upper != SEPARATED, axis=1))
     # secure: every contact that touches sticks, the body is at rest
     assert np.all((last == SEPARATED) | (last == STICKING))
-    assert np.max(np.abs(arr["twist"][-20:, 2])) < 0.02
+    assert np.ptp(arr["pose"][-20:, 2]) < 1e-3  # no turning
+    assert np.ptp(arr["pose"][-20:, 0]) < 1e-4  # no slip along the jaws
     # the jaws stalled on the object, squeezing it: gap = the triangle's height
     gap = arr["joints"][-1, 1] - arr["joints"][-1, 0]
     side = abs(gripper_run.params.vertices[1][0] - gripper_run.params.vertices[0][0])
@@ -75,8 +76,8 @@ def test_gripper_modes_agree_with_geometry(gripper_run: SimRun) -> None:
     gap_upper = upper[:, None] - v[:, :, 1]
     gaps = np.concatenate([gap_lower, gap_upper], axis=1)  # (N, 6) in contact order
     touching = mode != SEPARATED
-    assert np.max(np.abs(gaps[touching])) < 5e-4
-    assert np.min(gaps) > -1e-3  # no vertex deep inside a jaw
+    assert np.max(np.abs(gaps[touching])) < 1e-4
+    assert np.min(gaps) > -5e-4  # no vertex deep inside a jaw (one-step transients only)
     # sliding direction: vertex x displacement along the jaw tangent (lower +x, upper -x)
     tangent = np.array([1.0] * 3 + [-1.0] * 3)
     dxt = np.concatenate([v[1:, :, 0] - v[:-1, :, 0]] * 2, axis=1) * tangent

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from sim_publisher.errors import ParamError, SimError
 from sim_publisher.params import (
@@ -16,6 +17,7 @@ from sim_publisher.params import (
     equilateral_triangle,
     load_params,
     params_class,
+    params_to_dict,
 )
 from sim_publisher.push import PushSimulation
 from sim_publisher.shapes import SHAPES, load_outline
@@ -130,3 +132,12 @@ def test_shipped_outlines_are_centred_ccw_with_table_mass(shape: str) -> None:
 def test_unknown_shape_is_a_param_error() -> None:
     with pytest.raises(ParamError, match="unknown shape"):
         PushSimulation(PushParams(shape="banana"))
+
+
+@pytest.mark.parametrize("cls", [EdgeParams, GripperParams, PushParams])
+def test_params_round_trip_through_yaml(cls: Any, tmp_path: Path) -> None:
+    p = cls(seed=11, duration=1.25)
+    f = tmp_path / "p.yaml"
+    f.write_text(yaml.safe_dump(params_to_dict(p)), encoding="utf-8")
+    name = next(iter(params_to_dict(p)))
+    assert load_params(name, f) == p

@@ -16,7 +16,7 @@ G = 9.81
 
 def _push_phase(sim: PushSimulation, t: np.ndarray) -> np.ndarray:
     touch = sim.params.approach / sim.params.speed
-    return (t > touch + 0.05) & (t < sim.move_time - 0.01)
+    return np.asarray((t > touch + 0.05) & (t < sim.move_time - 0.01))
 
 
 def test_pusher_follows_the_straight_path(push_sim: PushSimulation, push_run: SimRun) -> None:
@@ -63,12 +63,15 @@ def test_angled_push_slides_at_the_friction_cone() -> None:
     sliding = (mode == SLIDING_POS) | (mode == SLIDING_NEG)
     assert np.count_nonzero(sliding) > 30
     assert np.count_nonzero(mode == STICKING) < np.count_nonzero(sliding)
-    # sliding contact force lies on the cone edge: |f_t| / f_n = mu_pusher (the object
-    # barely turns, so the pushed side's normal stays the initial one)
+    # sliding contact force lies on the cone edge: |f_t| / f_n = mu_pusher, with the pushed
+    # side's normal rotated by the object's yaw
     f = arr["pusher_wrench"][sliding, :2]
-    side_n = _outward_normal(sim, sim.params.side)
-    fn = np.abs(f @ side_n)
-    ft = np.abs(f @ np.array([-side_n[1], side_n[0]]))
+    yaw = arr["pose"][sliding, 2]
+    n0 = _outward_normal(sim, sim.params.side)
+    c, s = np.cos(yaw), np.sin(yaw)
+    normal = np.stack([c * n0[0] - s * n0[1], s * n0[0] + c * n0[1]], axis=1)
+    fn = np.abs(np.sum(f * normal, axis=1))
+    ft = np.abs(f[:, 0] * normal[:, 1] - f[:, 1] * normal[:, 0])
     steady = fn > 1.0
     assert np.count_nonzero(steady) > 20
     assert np.median(ft[steady] / fn[steady]) == pytest.approx(sim.params.mu_pusher, rel=0.1)
@@ -102,3 +105,35 @@ def test_push_path_geometry_and_bad_side() -> None:
     assert np.allclose(start, [-0.5, -1.6])
     with pytest.raises(ParamError, match="side"):
         push_path(square, side=4, side_position=0.5, angle=0.0, pusher_radius=0.1, approach=0.1)
+
+
+@pytest.mark.parametrize("shape", ["rect1", "ellip1", "ellip3", "hex"])
+@pytest.mark.parametrize("side", [0, 1])
+def test_every_shipped_shape_is_pushed_along(shape: str, side: int) -> None:
+    sim = PushSimulation(PushParams(shape=shape, side=side))
+    arr = sim.run().stack()
+    d = arr["pose"][-1, :2] - arr["pose"][0, :2]
+    assert float(d @ sim.direction) > 0.9 * sim.params.travel
+    mode = np.argmax(arr["modes"][:, 0], axis=1)
+    assert np.mean(mode[_push_phase(sim, arr["t"])] != SEPARATED) > 0.95
+    # contact geometry (margin compensated): the outline's distance to the pusher axis is
+    # the pusher radius while in contact and never less
+    dist = np.array(
+        [
+            _distance_to_outline(sim, pose, p)
+            for pose, p in zip(arr["pose"], arr["joints"], strict=True)
+        ]
+    )
+    r = sim.params.pusher_radius
+    assert np.min(dist) > r - 5e-5
+    assert np.max(np.abs(dist[mode != SEPARATED] - r)) < 5e-5
+
+
+def _distance_to_outline(sim: PushSimulation, pose: np.ndarray, point: np.ndarray) -> float:
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    local = np.array([[c, s], [-s, c]]) @ (point - pose[:2])
+    a = sim.outline.vertices
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    u = np.clip(np.einsum("ij,ij->i", local - a, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
+    return float(np.min(np.linalg.norm(a + u[:, None] * ab - local, axis=1)))

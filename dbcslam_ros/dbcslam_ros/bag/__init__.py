@@ -14,6 +14,15 @@ Read (log-time order; ``BagError`` names the file and the problem)::
     with open_bag("out/run1") as bag:                       # or a bare .mcap file
         for msg, obj in bag.decoded(["/object/pose"]):
             ...
+
+Compatibility: the bags open in rosbags (``AnyReader([path])``), in the mcap tools
+(``mcap.reader.make_reader`` + ``mcap_ros2.decoder.DecoderFactory``; tests prove both) and in
+ROS 2 Jazzy's ``ros2 bag play BAG_DIR`` / ``ros2 bag info BAG_DIR`` (storage ``mcap`` is read
+from metadata.yaml; for the bare file use ``ros2 bag play -s mcap BAG_DIR/NAME_0.mcap``). The
+layout follows rosbag2 Jazzy: metadata version 9 with ``offered_qos_profiles`` as a YAML
+sequence (enum names as strings), MCAP channel metadata ``offered_qos_profiles`` (YAML
+string) and ``topic_type_hash`` (RIHS01), ``ros2msg`` schemas with the concatenated
+definitions.
 """
 
 from __future__ import annotations

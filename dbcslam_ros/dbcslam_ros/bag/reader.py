@@ -236,6 +236,7 @@ class BagReader:
         self.metadata: BagMetadata | None = None
         files = self._resolve_files()
         self._files = [_File(f, salvage=salvage) for f in files]
+        self._topics = self._collect_topics()
         self._check_consistency()
 
     # -- opening -----------------------------------------------------------------------------
@@ -322,6 +323,9 @@ class BagReader:
 
     def topics(self) -> dict[str, TopicSummary]:
         """Topics by name, with the counts the files hold and the offered QoS."""
+        return dict(self._topics)
+
+    def _collect_topics(self) -> dict[str, TopicSummary]:
         meta_topics: dict[str, TopicInfo] = (
             {t.name: t for t in self.metadata.topics} if self.metadata else {}
         )
@@ -392,15 +396,14 @@ class BagReader:
         Raises:
             BagError: the type is unknown or the bytes do not decode.
         """
-        topic = self.topics().get(message.topic)
+        topic = self._topics.get(message.topic)
         if topic is not None and topic.schema_text:
             register_schema(topic.msgtype, topic.schema_encoding, topic.schema_text)
         return deserialize(message.data, message.msgtype)
 
     def decoded(self, topics: Iterable[str] | None = None) -> Iterator[tuple[BagMessage, Any]]:
         """``(raw message, decoded dataclass)`` pairs in log-time order."""
-        summaries = self.topics()
-        for topic in summaries.values():
+        for topic in self._topics.values():
             if topic.schema_text:
                 register_schema(topic.msgtype, topic.schema_encoding, topic.schema_text)
         for msg in self.messages(topics):

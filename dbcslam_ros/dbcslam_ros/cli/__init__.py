@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import traceback
 from collections.abc import Sequence
 
@@ -45,7 +46,10 @@ def build_parser(commands: dict[str, Command] | None = None) -> argparse.Argumen
         child = sub.add_parser(
             command.name,
             help=command.help,
-            description=command.description,
+            # Pre-formatted descriptions (with line breaks) are kept; one-liners are wrapped.
+            description=command.description
+            if "\n" in command.description
+            else textwrap.fill(command.description, 88),
             epilog=f"examples:\n{command.examples}",
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )

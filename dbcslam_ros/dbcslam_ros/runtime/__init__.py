@@ -67,6 +67,7 @@ __all__ = [
     "ParameterDescriptor",
     "QoSProfile",
     "Time",
+    "adapted_subscription_qos",
     "create_raw_publisher",
     "create_raw_subscription",
     "decode",
@@ -288,13 +289,29 @@ def get_publishers_info(node: Any, topic: str) -> list[Any]:
             node_name=i.node_name,
             node_namespace=i.node_namespace,
             topic_type=i.topic_type,
-            endpoint_type=str(i.endpoint_type),
+            endpoint_type=str(getattr(i.endpoint_type, "name", i.endpoint_type)),
             qos_profile=neutral_qos(i.qos_profile),
             endpoint_gid=bytes(i.endpoint_gid),
             topic_name=topic,
         )
         for i in infos
     ]
+
+
+def adapted_subscription_qos(infos: list[Any], depth: int = 100) -> Any:
+    """Subscription QoS that matches every given publisher and keeps what they offer (the
+    rosbag2 recorder rule): reliable only if all offer reliable, transient local only if all
+    offer transient local; keep last ``depth``. ``infos`` as from :func:`get_publishers_info`;
+    with none, reliable + volatile."""
+    profiles = [neutral_qos(i.qos_profile) for i in infos]
+    reliable = all(p.reliability == "reliable" for p in profiles)
+    latched = bool(profiles) and all(p.durability == "transient_local" for p in profiles)
+    return make_qos(
+        "reliable" if reliable else "best_effort",
+        "transient_local" if latched else "volatile",
+        "keep_last",
+        depth,
+    )
 
 
 def spin_until(

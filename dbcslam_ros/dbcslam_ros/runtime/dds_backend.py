@@ -517,6 +517,16 @@ def _user_data(type_name: str, node: Node) -> bytes:
     return text.encode()
 
 
+def _strip_padding(data: bytes, type_name: str) -> bytes:
+    """rosbag2-layout bytes of a DDS sample: trailing alignment padding removed and the
+    header options (where Cyclone C records the padding count) zeroed."""
+    try:
+        end = dds_messages.cdr_length(data, type_name)
+    except MessageTypeError:
+        return bytes(data)  # not ours to judge: deliver unchanged
+    return bytes(data[:2]) + b"\0\0" + bytes(data[4:end])
+
+
 def _pad4(data: bytes) -> bytes:
     rem = len(data) % 4
     return data + b"\0" * (4 - rem) if rem else data
@@ -574,6 +584,11 @@ class Publisher:
             return bool(self._writer.wait_for_acks(int(timeout_sec * 1e9)))
         except Exception:
             return False
+
+    def wait_for_all_acked(self, timeout: Duration | None = None) -> bool:
+        """rclpy spelling of :meth:`wait_for_acks` (``timeout`` None or negative: 1 day)."""
+        ns = timeout.nanoseconds if timeout is not None else -1
+        return self.wait_for_acks(ns / 1e9 if ns >= 0 else 86400.0)
 
     def destroy(self) -> None:
         """Flush (reliable: wait up to 0.3 s for acks) and delete the writer."""
@@ -638,10 +653,7 @@ class Subscription:
             if not info.valid_data:
                 continue
             if self.raw:
-                try:
-                    out.append(data[: dds_messages.cdr_length(data, self.msg_type)])
-                except MessageTypeError:
-                    out.append(bytes(data))
+                out.append(_strip_padding(data, self.type_name))
             else:
                 out.append(dds_messages.decode(data, self.msg_type))
         return out
@@ -691,6 +703,9 @@ class Timer:
         if self._canceled:
             return False
         now = self._clock.now_ns()
+        if now < self._next - self.timer_period_ns:  # clock jumped back (e.g. bag loop)
+            self._next = now + self.timer_period_ns
+            return False
         if now < self._next:
             return False
         # skip missed periods rather than bursting (as rcl does)
@@ -737,6 +752,7 @@ class Node:
         node_name: str,
         *,
         namespace: str | None = None,
+        cli_args: Sequence[str] | None = None,
         parameter_overrides: Iterable[Parameter] | None = None,
         automatically_declare_parameters_from_overrides: bool = False,
         **_ignored: Any,
@@ -745,20 +761,24 @@ class Node:
             msg = "runtime.init() must be called before creating a Node"
             raise RuntimeBackendError(msg)
         args = _CTX.args
-        name = args.node_name or node_name
-        ns = args.namespace if args.namespace is not None else (namespace or "")
+        # node-local arguments (rclpy's cli_args) win over the process-wide ones
+        local = parse_ros_args(["node", *cli_args]) if cli_args else RosArgs()
+        name = local.node_name or args.node_name or node_name
+        ns_arg = local.namespace if local.namespace is not None else args.namespace
+        ns = ns_arg if ns_arg is not None else (namespace or "")
         ns = "/" + ns.strip("/") if ns.strip("/") else "/"
         _check_name("node name", name, allow_slash=False)
         self._name = name
         self._ns = ns
-        self._remaps = dict(args.remaps)
-        lvl = args.log_level
+        self._remaps = {**args.remaps, **local.remaps}
+        lvl = local.log_level or args.log_level
         self._logger = Logger(
             self.get_fully_qualified_name().lstrip("/").replace("/", "."),
             _LEVELS.get(lvl, 20) if lvl else 20,
         )
         self._clock = Clock()
         self._overrides = params_for_node(args, name, ns)
+        self._overrides.update(params_for_node(local, name, ns))
         for p in parameter_overrides or ():
             self._overrides[p.name] = p.value
         self._params: dict[str, Parameter] = {}

@@ -7,7 +7,9 @@ field names and nesting, keyword construction and defaults (zeros, empty strings
 sequences, default-constructed nested messages), and the message constants as class
 attributes (e.g. ``Marker.ADD``). Numeric sequences and fixed arrays hold Python lists
 (``uint8``/``byte`` fixed arrays hold ``bytes``); assigning a numpy array, tuple or
-``array.array`` converts it to that form.
+``array.array`` converts it to that form. ``byte`` and ``char`` are ``uint8`` in the DDS type
+(as rmw_cyclonedds_cpp declares them); a scalar ``byte`` accepts rclpy's ``b"\x01"`` and
+rosbags' signed ints and holds 0..255.
 
 The codec is plain CDR, little endian, XCDR1 (encapsulation header ``00 01 00 00``): the same
 bytes as ``typestore.serialize_cdr`` (rosbag2 layout), proven by tests/ros/test_codec_*.py.
@@ -33,7 +35,8 @@ _CLASSES: dict[str, Any] = {}
 # rosbags base type name -> (cyclonedds annotation attribute, default value)
 _BASE = {
     "bool": ("bool", False),
-    "byte": ("int8", 0),  # rosbags packs a scalar byte signed; same bits on the wire
+    # byte and char are uint8 in the DDS types rmw_cyclonedds_cpp registers (XTypes matching)
+    "byte": ("uint8", 0),
     "char": ("uint8", 0),
     "int8": ("int8", 0),
     "uint8": ("uint8", 0),
@@ -107,25 +110,30 @@ def _build(name: str) -> Any:
         raise MessageTypeError(msg) from err
     pkg, _, typ = name.split("/")
     namespace: Any = idl_meta.__prepare__(typ, (idl_struct,), typename=dds_type_name(name))
-    list_fields: dict[str, bool] = {}  # field -> holds bytes (uint8/byte fixed array)
+    # field -> "bytes" (uint8/byte fixed array), "list" (other arrays/sequences) or "byte"
+    # (scalar byte: rclpy spells values as 1-byte bytes, rosbags as a signed int; both are
+    # accepted and stored as an unsigned int 0..255, the same bits on the wire)
+    list_fields: dict[str, str] = {}
     for fname, (kind, detail) in fields:
         if kind in (_NODE_BASE, _NODE_NAME):
             ann, factory = _element((kind, detail))
+            if kind == _NODE_BASE and detail[0] == "byte":
+                list_fields[fname] = "byte"
         elif kind == _NODE_ARRAY:
             elem, length = detail
             eann, efactory = _element(elem)
             ann = types.array[eann, length]
             if _is_bytes_elem(elem):
-                list_fields[fname] = True
+                list_fields[fname] = "bytes"
                 factory = functools.partial(bytes, length)
             else:
-                list_fields[fname] = False
+                list_fields[fname] = "list"
                 factory = functools.partial(_repeat, efactory, length)
         elif kind == _NODE_SEQUENCE:
             elem, bound = detail
             eann, _ = _element(elem)
             ann = types.sequence[eann, bound] if bound else types.sequence[eann]
-            list_fields[fname] = False
+            list_fields[fname] = "list"
             factory = list
         else:
             msg = f"unsupported field node {kind!r} in {name}.{fname}"
@@ -145,12 +153,17 @@ def _build(name: str) -> Any:
 
 def _setattr(self: Any, name: str, value: Any) -> None:
     spec = type(self).__dbcslam_list_fields__.get(name)
-    if spec is not None:
-        if spec:
-            if not isinstance(value, bytes):
-                value = bytes(value.tolist() if hasattr(value, "tolist") else value)
-        elif not isinstance(value, list):
+    if spec == "list":
+        if not isinstance(value, list):
             value = value.tolist() if hasattr(value, "tolist") else list(value)
+    elif spec == "bytes":
+        if not isinstance(value, bytes):
+            value = bytes(value.tolist() if hasattr(value, "tolist") else value)
+    elif spec == "byte":
+        if isinstance(value, (bytes, bytearray)) and len(value) == 1:
+            value = value[0]
+        elif isinstance(value, int) and -128 <= value < 0:
+            value += 256
     object.__setattr__(self, name, value)
 
 
@@ -236,7 +249,7 @@ def _align(pos: int, size: int) -> int:
 def _scan_string(buf: bytes, pos: int, end: str) -> int:
     pos = _align(pos, 4)
     (n,) = struct.unpack_from(end + "I", buf, pos)
-    return pos + 4 + n
+    return pos + 4 + int(n)
 
 
 def _element_scanner(node: tuple[int, Any]) -> tuple[int, _Scan | None]:
@@ -317,7 +330,7 @@ def cdr_length(data: bytes | bytearray | memoryview, cls_or_name: Any) -> int:
         msg = f"not a plain CDR buffer: header {raw[:4].hex()!r}"
         raise MessageTypeError(msg)
     try:
-        end = _scanner(name)(raw[4:], 0, "<" if raw[1] == 1 else ">") + 4
+        end = int(_scanner(name)(raw[4:], 0, "<" if raw[1] == 1 else ">")) + 4
     except struct.error as err:
         msg = f"{len(raw)} bytes are too short for a {name} message: {err}"
         raise MessageTypeError(msg) from err

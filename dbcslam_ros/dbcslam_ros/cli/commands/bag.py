@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 import time
 from pathlib import Path
 
@@ -69,7 +70,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     info = sub.add_parser(
         "info",
         help="print what a bag holds: files, size, duration, start/end, topics, types, counts",
-        description=(
+        description=textwrap.fill(
             "Print what a bag holds (like 'ros2 bag info'): files, size, duration, first and "
             "last log time (UTC), message count, and per topic its type and count. Every "
             "message is read once, so a damaged bag is reported (exit code 2)."
@@ -80,7 +81,9 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    info.add_argument("bag", metavar="BAG", help="bag directory or .mcap file")
+    info.add_argument(
+        "bag", metavar="BAG", help="bag directory or .mcap file, or a directory of bags"
+    )
     info.add_argument(
         "--salvage",
         action="store_true",
@@ -89,8 +92,15 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from dbcslam_ros.bag.reader import find_bags
+
     if args.bag_command == "info":
-        print(format_info(args.bag, salvage=args.salvage))
+        paths = find_bags(args.bag)
+        reports = [format_info(str(p), salvage=args.salvage) for p in paths]
+        if len(paths) == 1:
+            print(reports[0])
+        else:
+            print("\n\n".join(f"== {p} ==\n{r}" for p, r in zip(paths, reports, strict=True)))
         return 0
     return 2  # pragma: no cover - argparse requires a subcommand
 

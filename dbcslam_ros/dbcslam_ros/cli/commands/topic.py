@@ -6,6 +6,7 @@ import argparse
 import itertools
 import math
 import sys
+import textwrap
 import time
 from collections import deque
 from typing import Any
@@ -165,7 +166,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     p_list = sub.add_parser(
         "list",
         help="print the topics seen on the domain",
-        description=(
+        description=textwrap.fill(
             "Print the topics seen on the DDS domain (ROS_DOMAIN_ID), one per line, after "
             "waiting --spin-time seconds for discovery."
         ),
@@ -185,7 +186,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     p_echo = sub.add_parser(
         "echo",
         help="print the messages of a topic as YAML",
-        description=(
+        description=textwrap.fill(
             "Print each message of TOPIC as a YAML document, documents separated by '---' "
             "(like 'ros2 topic echo'). Waits for a publisher; the type is discovered unless "
             "given. The subscription QoS matches what the publishers offer unless --qos* "
@@ -214,7 +215,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     p_hz = sub.add_parser(
         "hz",
         help="print the receive rate of a topic",
-        description=(
+        description=textwrap.fill(
             "Print, every second, the average receive rate of TOPIC over the last --window "
             "messages, with min/max/std of the gaps (like 'ros2 topic hz')."
         ),

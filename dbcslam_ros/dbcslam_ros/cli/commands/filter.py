@@ -1,0 +1,65 @@
+"""``dbcslam filter``: run the DBC-SLAM filter node on live topics."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.errors import UsageError
+
+__all__ = ["COMMAND"]
+
+_DESCRIPTION = """\
+Start the filter node (node name dbcslam_filter). It waits for the latched /scenario
+(what the robot knows a priori), then turns every /object/pose into one estimate,
+using /object/wrench (the applied input, held from the start of the step) and
+/joint_states (jaw or pusher positions, interpolated to the pose stamp). It publishes
+/dbcslam/pose first, then /dbcslam/odometry, /dbcslam/contact_modes, /dbcslam/friction,
+/dbcslam/friction_map, /dbcslam/markers, and /diagnostics once a second (ESS, live
+hypotheses, step time, latency, rejected inputs by reason).
+
+Parameters (ROS params file `dbcslam_filter: {ros__parameters: {...}}` or
+--ros-args -p NAME:=VALUE): particles, ess_threshold, prune_threshold, parameter_model
+(reuse|mixture|geometric), contact_weight, gating_threshold, seed, scenario_file,
+model_file (a model extension from `dbcslam discrepancy`), frame_id, marker_particles,
+diagnostics_period. A bad message is logged, counted and dropped; SIGINT/SIGTERM stop."""
+
+_EXAMPLES = """\
+  dbcslam filter
+  dbcslam filter --params filter.yaml
+  dbcslam filter --ros-args -p particles:=1000 -p parameter_model:=geometric
+"""
+
+
+def _configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--params", metavar="FILE", help="ROS 2 parameters YAML file")
+    parser.add_argument(
+        "ros_args", nargs=argparse.REMAINDER, help="--ros-args ... passed to the node"
+    )
+
+
+def _run(args: argparse.Namespace) -> int:
+    from dbcslam_ros.filter_node import main
+
+    argv = ["dbcslam_filter"]
+    ros_args = list(args.ros_args)
+    if args.params:
+        path = Path(args.params)
+        if not path.is_file():
+            msg = f"{path}: no such parameters file"
+            raise UsageError(msg)
+        if "--ros-args" not in ros_args:
+            ros_args = ["--ros-args", *ros_args]
+        ros_args += ["--params-file", str(path)]
+    return main(argv + ros_args)
+
+
+COMMAND = Command(
+    name="filter",
+    help="run the DBC-SLAM filter node on live topics",
+    description=_DESCRIPTION,
+    examples=_EXAMPLES,
+    configure=_configure,
+    run=_run,
+)

@@ -1,0 +1,444 @@
+"""The DBC-SLAM filter node: subscribes to the contract's inputs, publishes its outputs.
+
+Run: ``dbcslam filter [--params FILE]`` or ``ros2 run dbcslam_ros filter_node``.
+
+The node configures itself from the latched ``/scenario`` (or parameter ``scenario_file``),
+feeds decoded inputs to a :class:`~dbcslam_ros.session.FilterSession` (synchronisation rules
+there) and publishes, for every accepted pose, ``/dbcslam/pose`` first, then odometry, contact
+modes, friction, the friction map, markers and (throttled) ``/diagnostics``. A bad message is
+logged (throttled), counted in ``/diagnostics`` and dropped; the node keeps running.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dbcslam_core.errors import DbcSlamError
+from dbcslam_core.extensions import ModelExtension
+from dbcslam_core.geometry import contact_kinematics
+from dbcslam_core.rbpf import FilterConfig
+from dbcslam_core.scenario import Scenario
+from dbcslam_ros import runtime as rt
+from dbcslam_ros.convert import (
+    InputRejected,
+    estimate_messages,
+    joints_from_msg,
+    ns_to_stamp,
+    pose_from_msg,
+    wrench_from_msg,
+    yaw_to_quaternion,
+)
+from dbcslam_ros.session import FilterSession, StampedEstimate
+
+__all__ = ["PARAMETERS", "FilterNode", "load_extensions", "main"]
+
+# name: (default, description). Declared with these types and descriptions.
+PARAMETERS: dict[str, tuple[Any, str]] = {
+    "particles": (500, "number of particles of the Rao-Blackwellized filter"),
+    "ess_threshold": (0.5, "resample when ESS < ess_threshold * particles (0..1)"),
+    "prune_threshold": (-1.0, "prune mode hypotheses below this probability (<0: preset)"),
+    "parameter_model": ("", "eq. (7) form: reuse | mixture | geometric ('' = preset)"),
+    "contact_weight": (-1.0, "eq. (7) weight w on the posterior while in contact (<0: preset)"),
+    "gating_threshold": (
+        8.0,
+        "reject a pose whose Mahalanobis distance to the prediction exceeds this (0: off)",
+    ),
+    "seed": (0, "seed of the filter's random generator"),
+    "scenario_file": ("", "YAML scenario file used instead of the /scenario topic"),
+    "model_file": ("", "model-extension YAML (from `dbcslam discrepancy`) to load"),
+    "frame_id": ("world", "frame of the published estimates"),
+    "marker_particles": (100, "particles drawn in /dbcslam/markers (0: none)"),
+    "diagnostics_period": (1.0, "seconds between /diagnostics messages"),
+}
+
+MODE_COLOURS = (
+    (0.6, 0.6, 0.6),  # separated: grey
+    (0.1, 0.8, 0.1),  # sticking: green
+    (0.95, 0.3, 0.1),  # sliding_pos: red-orange
+    (0.2, 0.3, 0.95),  # sliding_neg: blue
+)
+
+
+def load_extensions(path: str) -> tuple[ModelExtension, ...]:
+    """Model extensions from a YAML model file (``extensions: [{effect, params}, ...]`` or a
+    single ``{effect, params}`` mapping); empty path -> nominal model."""
+    if not path:
+        return ()
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text())
+    items = data.get("extensions", [data]) if isinstance(data, dict) else data
+    return tuple(ModelExtension.from_dict(item) for item in items if item.get("effect") != "none")
+
+
+def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:
+    """FilterConfig for a scenario kind from the preset plus explicit parameter overrides."""
+    overrides: dict[str, Any] = {
+        "particles": int(params["particles"]),
+        "ess_threshold": float(params["ess_threshold"]),
+    }
+    if float(params["prune_threshold"]) >= 0.0:
+        overrides["prune_threshold"] = float(params["prune_threshold"])
+    if str(params["parameter_model"]):
+        overrides["parameter_model"] = str(params["parameter_model"])
+    if float(params["contact_weight"]) >= 0.0:
+        overrides["contact_weight"] = float(params["contact_weight"])
+    return FilterConfig.preset(kind, **overrides)
+
+
+class FilterNode:
+    """Wires runtime subscriptions and publishers around a FilterSession."""
+
+    def __init__(self, node: Any) -> None:
+        self.node = node
+        self.log = node.get_logger()
+        desc = rt.ParameterDescriptor
+        self.params: dict[str, Any] = {
+            name: node.declare_parameter(name, default, desc(description=text)).value
+            for name, (default, text) in PARAMETERS.items()
+        }
+        self.frame = str(self.params["frame_id"])
+        self.session: FilterSession | None = None
+        self.scenario: Scenario | None = None
+        self.extensions = load_extensions(str(self.params["model_file"]))
+        self.rejected_before_scenario = 0
+        self.received = 0
+        self.published = 0
+        self.step_times: list[float] = []
+        self.latencies: list[float] = []
+        self.last_estimate: StampedEstimate | None = None
+        self._last_diag = 0.0
+        self._t0 = time.monotonic()
+
+        sensor = rt.qos_profile("sensor_data", depth=50)
+        cls = rt.message_class
+        self.pubs = {
+            "/dbcslam/pose": node.create_publisher(
+                cls("geometry_msgs/msg/PoseWithCovarianceStamped"), "/dbcslam/pose", _reliable()
+            ),
+            "/dbcslam/odometry": node.create_publisher(
+                cls("nav_msgs/msg/Odometry"), "/dbcslam/odometry", _reliable()
+            ),
+            "/dbcslam/contact_modes": node.create_publisher(
+                cls("std_msgs/msg/Float64MultiArray"), "/dbcslam/contact_modes", _reliable()
+            ),
+            "/dbcslam/friction": node.create_publisher(
+                cls("std_msgs/msg/Float64MultiArray"), "/dbcslam/friction", _reliable()
+            ),
+            "/dbcslam/friction_map": node.create_publisher(
+                cls("nav_msgs/msg/OccupancyGrid"), "/dbcslam/friction_map", _reliable()
+            ),
+            "/dbcslam/markers": node.create_publisher(
+                cls("visualization_msgs/msg/MarkerArray"), "/dbcslam/markers", _reliable()
+            ),
+            "/diagnostics": node.create_publisher(
+                cls("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", _reliable()
+            ),
+        }
+        self.subs = [
+            node.create_subscription(
+                cls("std_msgs/msg/String"),
+                "/scenario",
+                self.on_scenario,
+                rt.qos_profile("latched"),
+            ),
+            node.create_subscription(
+                cls("geometry_msgs/msg/PoseStamped"), "/object/pose", self.on_pose, sensor
+            ),
+            node.create_subscription(
+                cls("geometry_msgs/msg/WrenchStamped"), "/object/wrench", self.on_wrench, sensor
+            ),
+            node.create_subscription(
+                cls("sensor_msgs/msg/JointState"), "/joint_states", self.on_joints, sensor
+            ),
+        ]
+        self.timer = node.create_timer(
+            float(self.params["diagnostics_period"]), self.publish_diagnostics
+        )
+        path = str(self.params["scenario_file"])
+        if path:
+            try:
+                self.configure(Scenario.from_yaml(Path(path).read_text()))
+            except (OSError, DbcSlamError) as err:
+                msg = f"cannot load scenario_file {path!r}: {err}"
+                raise SystemExit(msg) from err
+
+    # -- configuration -----------------------------------------------------------------------
+    def configure(self, scenario: Scenario) -> None:
+        """(Re)build the session for a scenario."""
+        config = build_config(scenario.kind, self.params)
+        self.scenario = scenario
+        self.session = FilterSession(
+            scenario, config, seed=int(self.params["seed"]), extensions=self.extensions
+        )
+        self.log.info(
+            f"configured for scenario '{scenario.kind}': contacts {list(scenario.contacts)}, "
+            f"friction pairs {list(scenario.friction.pairs)}, {config.particles} particles"
+        )
+
+    def on_scenario(self, msg: Any) -> None:
+        if str(self.params["scenario_file"]):
+            return
+        try:
+            scenario = Scenario.from_yaml(str(msg.data))
+        except DbcSlamError as err:
+            self._reject("bad_scenario", f"ignoring /scenario: {err}")
+            return
+        if self.scenario is not None and scenario == self.scenario:
+            return
+        self.configure(scenario)
+
+    # -- inputs ------------------------------------------------------------------------------
+    def _reject(self, reason: str, text: str) -> None:
+        if self.session is not None:
+            self.session.reject(reason)
+        else:
+            self.rejected_before_scenario += 1
+        self.log.warning(text, throttle_duration_sec=2.0)
+
+    def on_wrench(self, msg: Any) -> None:
+        if self.session is None:
+            return
+        try:
+            self.session.add_wrench(wrench_from_msg(msg))
+        except InputRejected as err:
+            self._reject(err.reason, f"rejected /object/wrench: {err}")
+
+    def on_joints(self, msg: Any) -> None:
+        if self.session is None or self.scenario is None:
+            return
+        try:
+            self.session.add_joints(joints_from_msg(msg, self.scenario.joints))
+        except InputRejected as err:
+            self._reject(err.reason, f"rejected /joint_states: {err}")
+
+    def on_pose(self, msg: Any) -> None:
+        received = time.monotonic()
+        self.received += 1
+        if self.session is None or self.scenario is None:
+            self.rejected_before_scenario += 1
+            self.log.warning("no /scenario yet: dropping pose", throttle_duration_sec=5.0)
+            return
+        try:
+            reading = pose_from_msg(msg)
+            if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
+                self._reject("outlier", "rejected /object/pose: outside the gating threshold")
+                return
+            results = self.session.add_pose(reading)
+        except InputRejected as err:
+            if err.reason != "stamp_order" or self.session.resets == 0:
+                self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
+            return
+        except (DbcSlamError, ValueError) as err:
+            self._reject("filter_error", f"filter step failed, pose dropped: {err}")
+            return
+        for res in results:
+            self._publish(res)
+            self.latencies.append(time.monotonic() - received)
+
+    def _gated(self, x: float, y: float, yaw: float, stamp_ns: int) -> bool:
+        gate = float(self.params["gating_threshold"])
+        last = self.last_estimate
+        if gate <= 0.0 or last is None or self.scenario is None:
+            return False
+        dt = max(0.0, (stamp_ns - last.stamp_ns) * 1e-9)
+        est = last.estimate
+        pred = est.pose[:2] + est.twist[:2] * dt
+        noise = self.scenario.noise.position
+        cov = est.pose_cov[:2, :2] + est.twist_cov[:2, :2] * dt * dt + noise**2 * np.eye(2)
+        r = np.array([x, y]) - pred
+        try:
+            d2 = float(r @ np.linalg.solve(cov, r))
+        except np.linalg.LinAlgError:
+            return False
+        return d2 > gate * gate
+
+    # -- outputs -----------------------------------------------------------------------------
+    def _publish(self, res: StampedEstimate) -> None:
+        assert self.scenario is not None
+        try:
+            msgs = estimate_messages(res.estimate, self.scenario, res.stamp_ns, self.frame)
+        except ValueError as err:
+            self._reject("nan_estimate", f"not publishing: {err}")
+            return
+        for topic, m in msgs.items():  # pose first (dict order)
+            self.pubs[topic].publish(m)
+        if int(self.params["marker_particles"]) > 0:
+            self.pubs["/dbcslam/markers"].publish(self._markers(res))
+        self.published += 1
+        self.step_times.append(res.step_time_s)
+        self.last_estimate = res
+
+    def _markers(self, res: StampedEstimate) -> Any:
+        assert self.scenario is not None and self.session is not None
+        cls = rt.message_class
+        marker_cls = cls("visualization_msgs/msg/Marker")
+        point = cls("geometry_msgs/msg/Point")
+        colour = cls("std_msgs/msg/ColorRGBA")
+        header = cls("std_msgs/msg/Header")(stamp=ns_to_stamp(res.stamp_ns), frame_id=self.frame)
+        est = res.estimate
+        x, y, yaw = (float(v) for v in est.pose)
+        qx, qy, qz, qw = yaw_to_quaternion(yaw)
+        pose = cls("geometry_msgs/msg/Pose")(
+            position=point(x=x, y=y, z=0.0),
+            orientation=cls("geometry_msgs/msg/Quaternion")(x=qx, y=qy, z=qz, w=qw),
+        )
+        ident = cls("geometry_msgs/msg/Pose")(
+            position=point(x=0.0, y=0.0, z=0.0),
+            orientation=cls("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        vec = cls("geometry_msgs/msg/Vector3")
+        markers = []
+        body = self.scenario.body
+        if body.shape == "polygon":
+            verts = [*body.vertices, body.vertices[0]]
+            markers.append(
+                marker_cls(
+                    header=header,
+                    ns="body",
+                    id=0,
+                    type=4,  # LINE_STRIP
+                    action=0,
+                    pose=pose,
+                    scale=vec(x=0.002, y=0.0, z=0.0),
+                    color=colour(r=1.0, g=1.0, b=0.0, a=1.0),
+                    points=[point(x=float(vx), y=float(vy), z=0.0) for vx, vy in verts],
+                )
+            )
+        else:
+            markers.append(
+                marker_cls(
+                    header=header,
+                    ns="body",
+                    id=0,
+                    type=2,  # SPHERE
+                    action=0,
+                    pose=pose,
+                    scale=vec(x=0.02, y=0.02, z=0.02),
+                    color=colour(r=1.0, g=1.0, b=0.0, a=1.0),
+                )
+            )
+        q, w = self.session.particles()
+        n = min(int(self.params["marker_particles"]), len(q))
+        idx = np.argsort(-w)[:n]
+        markers.append(
+            marker_cls(
+                header=header,
+                ns="particles",
+                id=1,
+                type=8,  # POINTS
+                action=0,
+                pose=ident,
+                scale=vec(x=0.003, y=0.003, z=0.0),
+                color=colour(r=0.8, g=0.8, b=0.8, a=0.6),
+                points=[point(x=float(q[i, 0]), y=float(q[i, 1]), z=0.0) for i in idx],
+            )
+        )
+        joints = self.session.last_joints()
+        q_mean = est.pose[: self.scenario.nq]
+        env = np.asarray(joints, dtype=np.float64) if joints else None
+        kin = contact_kinematics(self.scenario, q_mean, env, None)
+        pts, cols = [], []
+        for c in range(len(self.scenario.contacts)):
+            probs = est.modes[c]
+            m = int(np.argmax(probs))
+            r, g, b = MODE_COLOURS[m]
+            pts.append(point(x=float(kin.point[c, 0]), y=float(kin.point[c, 1]), z=0.0))
+            cols.append(colour(r=r, g=g, b=b, a=float(max(0.2, 1.0 - probs[0]))))
+        markers.append(
+            marker_cls(
+                header=header,
+                ns="contacts",
+                id=2,
+                type=7,  # SPHERE_LIST
+                action=0,
+                pose=ident,
+                scale=vec(x=0.008, y=0.008, z=0.008),
+                color=colour(r=1.0, g=1.0, b=1.0, a=1.0),
+                points=pts,
+                colors=cols,
+            )
+        )
+        return cls("visualization_msgs/msg/MarkerArray")(markers=markers)
+
+    def diagnostics_values(self) -> dict[str, str]:
+        """Key/values published in /diagnostics (also used by tests and `dbcslam demo`)."""
+        values: dict[str, str] = {
+            "poses_received": str(self.received),
+            "estimates_published": str(self.published),
+            "input_rate_hz": f"{self.received / max(1e-9, time.monotonic() - self._t0):.1f}",
+            "rejected_before_scenario": str(self.rejected_before_scenario),
+        }
+        if self.session is not None:
+            values["rejected_total"] = str(sum(self.session.rejected.values()))
+            for reason, count in sorted(self.session.rejected.items()):
+                values[f"rejected_{reason}"] = str(count)
+            values["resets"] = str(self.session.resets)
+            values["filter_steps"] = str(self.session.steps)
+        if self.last_estimate is not None:
+            est = self.last_estimate.estimate
+            values["ess"] = f"{est.ess:.1f}"
+            values["live_hypotheses"] = f"{est.live_hypotheses:.2f}"
+        if self.step_times:
+            recent = np.asarray(self.step_times[-200:]) * 1e3
+            values["step_time_ms_mean"] = f"{recent.mean():.3f}"
+            values["step_time_ms_max"] = f"{recent.max():.3f}"
+        if self.latencies:
+            lat = np.asarray(self.latencies[-200:]) * 1e3
+            values["latency_ms_mean"] = f"{lat.mean():.3f}"
+            values["latency_ms_max"] = f"{lat.max():.3f}"
+        return values
+
+    def publish_diagnostics(self) -> None:
+        cls = rt.message_class
+        values = self.diagnostics_values()
+        level = 0
+        if self.session is None:
+            level, text = 1, "waiting for /scenario"
+        elif values.get("rejected_total", "0") != "0":
+            level, text = 1, f"running; {values['rejected_total']} input(s) rejected"
+        else:
+            text = "running"
+        stamp_ns = self.last_estimate.stamp_ns if self.last_estimate else 0
+        status = cls("diagnostic_msgs/msg/DiagnosticStatus")(
+            level=bytes([level]) if rt.BACKEND == "rclpy" else level,
+            name="dbcslam_filter",
+            message=text,
+            hardware_id="dbcslam",
+            values=[
+                cls("diagnostic_msgs/msg/KeyValue")(key=k, value=v) for k, v in values.items()
+            ],
+        )
+        header = cls("std_msgs/msg/Header")(stamp=ns_to_stamp(stamp_ns), frame_id="")
+        self.pubs["/diagnostics"].publish(
+            cls("diagnostic_msgs/msg/DiagnosticArray")(header=header, status=[status])
+        )
+
+
+def _reliable() -> Any:
+    return rt.qos_profile("default", depth=100)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of the filter node (Jazzy node shape)."""
+    rt.init(args=list(args) if args is not None else sys.argv)
+    node = rt.Node("dbcslam_filter")
+    try:
+        FilterNode(node)
+        rt.spin(node)
+    except (KeyboardInterrupt, rt.ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rt.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""The DBC-SLAM Rao-Blackwellized particle filter on short synthetic runs (fixed seeds)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dbcslam_core.contact_modes import Mode
+from dbcslam_core.errors import ModelError
+from dbcslam_core.observation import PoseObservation
+from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
+from dbcslam_core.synthetic import (
+    Trajectory,
+    edge_mu_field,
+    edge_trajectory,
+    gripper_trajectory,
+)
+
+
+@pytest.fixture(scope="module")
+def edge_traj() -> Trajectory:
+    return edge_trajectory(0)
+
+
+@pytest.fixture(scope="module")
+def gripper_traj() -> Trajectory:
+    return gripper_trajectory(1, duration=3.0)
+
+
+def _run(
+    traj: Trajectory, cfg: FilterConfig, seed: int = 0, drop: int = 0
+) -> tuple[list[Estimate], DbcSlamFilter]:
+    sc = traj.scenario
+    f = DbcSlamFilter(sc, cfg, np.random.default_rng(seed))
+    out = []
+    for k in range(traj.n_steps - 1):
+        o = traj.obs[k + 1]
+        obs = (
+            None
+            if drop and k % drop == drop - 1
+            else PoseObservation(float(o[0]), float(o[1]), float(o[2]) if sc.nq == 3 else None)
+        )
+        if k == 0:
+            f.initialize(traj.obs[0], traj.obs[0] * 0 + sc.noise.position, joints=traj.env_obs[0])
+        out.append(f.step(obs, FilterInput(tuple(traj.u[k]), tuple(traj.env_obs[k + 1]))))
+    return out, f
+
+
+def _pos_rmse(est: list[Estimate], traj: Trajectory) -> float:
+    pose = np.array([e.pose[:2] for e in est])
+    return float(np.sqrt(np.mean((pose - traj.q[1:, :2]) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def edge_run(edge_traj: Trajectory) -> list[Estimate]:
+    return _run(edge_traj, FilterConfig.preset("edge", particles=150))[0]
+
+
+def test_edge_tracks_pose_modes_and_friction(
+    edge_traj: Trajectory, edge_run: list[Estimate]
+) -> None:
+    est = edge_run
+    noise = edge_traj.scenario.noise.position
+    assert _pos_rmse(est, edge_traj) < 0.5 * noise
+    modes = np.array([e.modes[0] for e in est])
+    truth = edge_traj.modes[1:, 0]
+    in_contact = truth != Mode.SEPARATED
+    assert np.mean((modes[:, 0] < 0.5) == in_contact) > 0.95
+    p_stick = modes[:, Mode.STICKING] / np.maximum(1.0 - modes[:, 0], 1e-12)
+    stick = truth == Mode.STICKING
+    assert np.mean((p_stick > 0.5)[in_contact] == stick[in_contact]) > 0.8
+    # sticking in the rough region (mu 0.9) under a load above 0.3 m g rules out mu = 0.3
+    k_rough = int(np.flatnonzero(edge_traj.q[1:, 0] > 0.6)[0])
+    assert est[k_rough].friction[0, 1] > 0.8
+    # out of contact (lifted off at the end) the belief relaxes to the prior
+    assert truth[-1] == Mode.SEPARATED
+    np.testing.assert_allclose(est[-1].friction[0], [0.5, 0.5], atol=1e-6)
+    for e in est:
+        np.testing.assert_allclose(e.modes.sum(axis=1), 1.0)
+        np.testing.assert_allclose(e.friction.sum(axis=1), 1.0)
+        assert e.pose_cov[2, 2] == 0.0 and e.pose[2] == 0.0  # point mass: no yaw
+        assert 1.0 <= e.ess <= 150.0 + 1e-9
+        assert 1.0 <= e.live_hypotheses <= 4.0
+
+
+def test_edge_friction_map_marks_rough_region(
+    edge_traj: Trajectory, edge_run: list[Estimate]
+) -> None:
+    fmap = edge_run[-1].friction_map
+    touched = fmap.touched(0)
+    truth = edge_traj.modes[1:, 0]
+    slid = (truth == Mode.SLIDING_POS) | (truth == Mode.SLIDING_NEG)
+    cells = np.unique(fmap.cell_of(edge_traj.q[1:][slid, 0]))
+    assert cells.size > 20 and touched[cells].all()
+    true_mu = edge_mu_field()(fmap.centers[cells])
+    correct = np.where(true_mu > 0.5, fmap.probs[0][cells, 1], fmap.probs[0][cells, 0])
+    assert np.mean(correct > 0.5) > 0.85
+    assert not touched[fmap.centers < -0.1].any()
+
+
+def test_fixed_friction_is_worse_on_edge(edge_traj: Trajectory, edge_run: list[Estimate]) -> None:
+    fixed, _ = _run(edge_traj, FilterConfig.preset("edge", particles=150, frozen_friction=0))
+    assert _pos_rmse(fixed, edge_traj) > 1.5 * _pos_rmse(edge_run, edge_traj)
+    np.testing.assert_allclose(fixed[-1].friction[0], [1.0, 0.0])
+
+
+def test_dropped_observations_and_determinism(edge_traj: Trajectory) -> None:
+    cfg = FilterConfig.preset("edge", particles=60)
+    n = 60
+    short = replace(
+        edge_traj,
+        t=edge_traj.t[:n],
+        q=edge_traj.q[:n],
+        u=edge_traj.u[:n],
+        env=edge_traj.env[:n],
+        modes=edge_traj.modes[:n],
+        obs=edge_traj.obs[:n],
+        env_obs=edge_traj.env_obs[:n],
+    )
+    a, _ = _run(short, cfg, seed=5, drop=3)
+    b, _ = _run(short, cfg, seed=5, drop=3)
+    np.testing.assert_array_equal([e.pose for e in a], [e.pose for e in b])
+    assert all(e.log_likelihood == 0.0 for e in a[2::3])
+    assert _pos_rmse(a, short) < 2.0 * edge_traj.scenario.noise.position
+
+
+def test_gripper_tracks_and_prunes(gripper_traj: Trajectory) -> None:
+    est, _ = _run(gripper_traj, FilterConfig.preset("gripper", particles=120))
+    sc = gripper_traj.scenario
+    assert _pos_rmse(est, gripper_traj) < 0.5 * sc.noise.position
+    yaw = np.array([e.pose[2] for e in est])
+    dyaw = (yaw - gripper_traj.q[1:, 2] + np.pi) % (2 * np.pi) - np.pi
+    assert np.sqrt(np.mean(dyaw**2)) < 0.75 * sc.noise.yaw
+    live = np.mean([e.live_hypotheses for e in est])
+    assert live < 32.0
+    modes = np.array([e.modes.argmax(axis=1) for e in est])
+    assert np.mean(modes == gripper_traj.modes[1:]) > 0.8
+    assert est[-1].modes.shape == (6, 4) and est[-1].friction.shape == (1, 3)
+
+
+def test_config_and_input_validation(edge_traj: Trajectory) -> None:
+    with pytest.raises(ModelError, match="parameter_model"):
+        FilterConfig(parameter_model="diffusion")
+    with pytest.raises(ModelError, match="resampler"):
+        FilterConfig(resampler="bogus")
+    with pytest.raises(ModelError, match="preset"):
+        FilterConfig.preset("moon")
+    sc = edge_traj.scenario
+    with pytest.raises(ModelError, match="frozen_friction"):
+        DbcSlamFilter(sc, FilterConfig(frozen_friction=5), np.random.default_rng(0))
+    f = DbcSlamFilter(sc, FilterConfig(particles=10), np.random.default_rng(0))
+    with pytest.raises(ModelError, match="observation"):
+        f.step(None, FilterInput((0.0, 0.0)))
+    with pytest.raises(ModelError, match="joints"):
+        f.step(PoseObservation(0.0, 0.1), FilterInput((0.0, 0.0), joints=(0.1,)))
+    e = f.step(PoseObservation(0.0, 0.1), FilterInput((0.0, 0.0)))
+    assert e.step == 1 and e.pose.shape == (3,) and e.twist_cov.shape == (3, 3)
