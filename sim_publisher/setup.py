@@ -15,6 +15,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
+    package_data={PACKAGE: ["data/shapes/*.npy", "data/shapes/README.md"]},
     install_requires=["setuptools", "numpy", "PyYAML", "pybullet"],
     zip_safe=True,
     maintainer="DBC-SLAM developers",

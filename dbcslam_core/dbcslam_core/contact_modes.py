@@ -125,6 +125,9 @@ def solve_reduced(
     the same flat obstacle is checked in aggregate, |sum lt| <= sum mu ln. Their tangential
     rows coincide, so only the sum of their friction impulses is determined, and a split
     inside every individual cone exists iff the aggregate holds (lt_i proportional to ln_i).
+    Assignments with more equality rows than velocity dofs are statically indeterminate: only
+    their velocity inequalities are scored (checking their impulse inequalities exactly would
+    need a feasibility LP over the null space of the impulses; not done).
     """
     sc = scales or ViolationScales()
     md = np.asarray(modes, dtype=np.int64)
@@ -232,10 +235,13 @@ def solve_reduced(
         )
         i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
         cone_sq = np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
-    score = (
-        np.sum(((v_sep + v_slip) / sc.velocity) ** 2 + (i_neg / sc.impulse) ** 2, axis=-1)
-        + cone_sq
-    )
+    # Statically indeterminate assignments (more equality rows than dofs, e.g. a triangle
+    # wedged between both jaws) have a family of impulse solutions; the min-norm one computed
+    # here need not be the feasible one, so their impulse inequalities are not scored.
+    n_rows = np.sum(~sep_all, axis=-1) + np.sum(stick_all, axis=-1)
+    determinate = n_rows <= nv
+    imp_sq = np.where(determinate, np.sum((i_neg / sc.impulse) ** 2, axis=-1) + cone_sq, 0.0)
+    score = np.sum(((v_sep + v_slip) / sc.velocity) ** 2, axis=-1) + imp_sq
     return ReducedSolution(
         v_next=np.asarray(v_next, dtype=np.float64),
         ln=ln,

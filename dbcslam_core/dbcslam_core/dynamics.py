@@ -106,7 +106,10 @@ class PlanarModel:
     scenario: the a-priori model; extensions: tuple of `ModelExtension` (empty = nominal);
     solver: an `LCPSolver` (default `LemkeSolver()`; a `PGSSolver` uses its dedicated
     friction-cone solve). active_set: solve each step's LCP only over the contacts that can
-    carry an impulse (verified exactly, full LCP as fallback); False = always the full LCP.
+    carry an impulse (exact: verified on the full LCP, full solve as fallback; 10-20x faster
+    when most contacts are open); default False = always `solver.solve_batch` on the full
+    LCP. With mu >~ 1 (Painleve-type non-uniqueness) the two may pick different valid
+    solutions; the active-set one has no spurious impulses.
     """
 
     def __init__(
@@ -115,7 +118,7 @@ class PlanarModel:
         extensions: Sequence[ModelExtension] = (),
         solver: LCPSolver | None = None,
         *,
-        active_set: bool = True,
+        active_set: bool = False,
     ) -> None:
         self.scenario = scenario
         self.active_set = active_set
@@ -341,7 +344,9 @@ class PlanarModel:
             flat_b = b.reshape(-1, 4 * c)
             try:
                 if self.active_set:
-                    z = np.stack([self._solve_active(ai, bi) for ai, bi in zip(flat_a, flat_b)])
+                    z = np.stack(
+                        [self._solve_active(flat_a[i], flat_b[i]) for i in range(len(flat_b))]
+                    )
                 else:
                     z = self.solver.solve_batch(flat_a, flat_b)
             except SolverError as err:

@@ -84,6 +84,8 @@ class FilterConfig:
     * warmup_steps / warmup_boost: during the first warmup_steps steps the process noise is
       inflated by a factor decaying linearly from 1 + warmup_boost to 1 (the initial velocity
       is unobserved; this lets the cloud lock onto it).
+    * friction_hold_steps: the friction belief is held at the prior for this many initial
+      steps (particles with wrong initial velocities that collide would bias it).
     * transition: softened NCP transition parameters; violation_impulse (dimensionless,
       relative to the contact's impulse magnitude) and violation_velocity (m/s): scales of
       the inequality violations of the reduced dynamics (contact_modes.ViolationScales).
@@ -105,8 +107,9 @@ class FilterConfig:
     contact_weight: float = 0.98
     free_weight: float = 0.0
     process_noise: tuple[float, float, float] = (0.01, 0.01, 0.5)
-    position_noise: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
-    constrained_noise: float = 0.05
+    position_noise: tuple[float, float, float] = (1e-5, 1e-5, 1e-4)
+    constrained_noise: float = 0.01
+    friction_hold_steps: int = 0
     warmup_steps: int = 30
     warmup_boost: float = 10.0
     transition: TransitionParams = field(default_factory=TransitionParams)
@@ -177,6 +180,8 @@ class FilterConfig:
                 "contact_weight": 0.999,
                 "free_weight": 1.0,
                 "map_range": (-0.2, 0.2),
+                "friction_hold_steps": 20,
+                "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
             }
         else:
@@ -525,7 +530,7 @@ class DbcSlamFilter:
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
         fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
         # 7. eq. (7): predictive friction belief for the next step
-        if self._step <= cfg.warmup_steps:
+        if self._step <= cfg.friction_hold_steps:
             # warm-up: wrong initial velocities are still being weeded out, and collisions
             # of those particles would bias the friction belief -> hold it at the prior.
             self.fric = np.tile(self._prior_b, (n_p, 1))

@@ -195,7 +195,7 @@ def edge_trajectory(
     gen = rng if rng is not None else np.random.default_rng(seed)
     prof = np.random.default_rng([seed, 7])
     jitter = 1.0 + 0.03 * prof.uniform(-1.0, 1.0, size=4)
-    model = PlanarModel(sc, extensions)
+    model = PlanarModel(sc, extensions, active_set=True)
     dt = sc.dt
     n = round(duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt
@@ -255,7 +255,7 @@ def gripper_trajectory(
     gen = rng if rng is not None else np.random.default_rng(seed)
     prof = np.random.default_rng([seed, 11])
     jitter = 1.0 + 0.03 * prof.uniform(-1.0, 1.0, size=6)
-    model = PlanarModel(sc, extensions)
+    model = PlanarModel(sc, extensions, active_set=True)
     dt = sc.dt
     n = round(duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt

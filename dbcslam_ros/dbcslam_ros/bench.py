@@ -199,15 +199,19 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
             "## Accuracy on the full trajectories (seed 0)",
             "",
             "| scenario | method | particles | pos RMSE [mm] | yaw RMSE [mrad] | in-contact acc "
-            "| mode acc | final P(true mu) | step time [ms] |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| stick/slide acc | mode acc | mean P(true mu) in contact | final P(true mu) "
+            "| step time [ms] |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in result["accuracy"]:
             lines.append(
                 f"| {r['scenario']} | {r['method']} | {r['particles']} | "
                 f"{_fmt(r['position_rmse'] * 1e3)} | "
                 f"{_fmt(r.get('yaw_rmse', math.nan) * 1e3)} | "
-                f"{_fmt(r['contact_accuracy'], 3)} | {_fmt(r['contact_mode_accuracy'], 3)} | "
+                f"{_fmt(r['contact_accuracy'], 3)} | "
+                f"{_fmt(r.get('stick_slide_accuracy', math.nan), 3)} | "
+                f"{_fmt(r['contact_mode_accuracy'], 3)} | "
+                f"{_fmt(r.get('true_friction_posterior_mean', math.nan), 3)} | "
                 f"{_fmt(r.get('final_true_friction_posterior', math.nan), 3)} | "
                 f"{_fmt(r['step_time_ms'])} |"
             )

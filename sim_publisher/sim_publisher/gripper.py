@@ -16,9 +16,10 @@ when it reaches the jaw's joint position.
 Truth: potential contacts `v{i}_{jaw}` (vertex i of the outline, jaw in lower, upper; jaw
 major order, as `dbcslam_core.scenario.Scenario.default_contacts`); the normal force of each
 pybullet contact point is split between the two vertices of the outline edge it lies on, by
-its position along the edge (a vertex contact goes wholly to its vertex); n = (0, 1), t = (1, 0) for the lower jaw and
-n = (0, -1), t = (-1, 0) for the upper jaw; the tangential relative velocity is the vertex
-velocity along t (jaws move along y only). One friction pair `jaws`.
+its position along the edge (a vertex contact goes wholly to its vertex); n = (0, 1),
+t = (1, 0) for the lower jaw and n = (0, -1), t = (-1, 0) for the upper jaw; the tangential
+relative velocity is the vertex velocity along t (jaws move along y only). One friction pair
+`jaws`.
 """
 
 from __future__ import annotations

@@ -351,3 +351,15 @@ def test_zstd_compressed_chunks_read_and_salvage_whole_chunks(tmp_path: Path) ->
     got = [m.data for m in read_bag(tmp_path / "cut.mcap", salvage=True)]
     assert 0 < len(got) < len(payloads)
     assert got == payloads[: len(got)]
+
+
+def test_runtime_message_objects_can_be_written(tmp_path: Path) -> None:
+    from dbcslam_ros import runtime as rt
+
+    string_cls = rt.message_class("std_msgs/msg/String")
+    write_bag(tmp_path / "rt", [("/scenario", string_cls(data="from runtime"), 7)])
+    (msg,) = read_bag(tmp_path / "rt")
+    assert msg.msgtype == "std_msgs/msg/String"
+    assert msg.data == serialize(_types()["std_msgs/msg/String"](data="from runtime"))[1]
+    with pytest.raises(BagError, match="not a ROS message"):
+        serialize(object())

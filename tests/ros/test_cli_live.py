@@ -241,7 +241,7 @@ def test_sigterm_closes_the_bag_with_every_received_message(
     assert len(decoded) == len(recorded)
 
 
-def test_topic_echo_prints_yaml_documents_and_list_shows_types(
+def test_topic_echo_prints_yaml_documents_list_shows_types_hz_measures(
     node_process: Callable[..., Any], helper_env: dict[str, str]
 ) -> None:
     talker = node_process("h2_cli_helper", "pose", env=helper_env)
@@ -273,6 +273,13 @@ def test_topic_echo_prints_yaml_documents_and_list_shows_types(
     lines = listing.stdout.splitlines()
     assert "/scenario [std_msgs/msg/String]" in lines
     assert "/object/pose [geometry_msgs/msg/PoseStamped]" in lines
+
+    hz = node_process("dbcslam_ros.cli", "topic", "hz", "/object/pose", "--window", "20")
+    assert hz.wait_for_log("average rate:", 30), hz.log()
+    os.kill(hz.pid, signal.SIGINT)
+    assert _wait(hz, 30) == 0, hz.log()
+    rate = float(hz.log().split("average rate:")[1].split()[0])
+    assert 2.0 < rate < 40.0  # the helper publishes every 50 ms (loosely: loaded machines)
 
     missing = run("topic", "echo", "/does_not_exist", "--timeout", "1")
     assert missing.returncode == 2

@@ -93,7 +93,10 @@ def _types_from_concatenated_msg(msgtype: str, text: str) -> dict[str, Any]:
 
 
 def serialize(message: object) -> tuple[str, bytes]:
-    """CDR bytes (little endian, with encapsulation header) of a rosbags message dataclass.
+    """CDR bytes (little endian, with encapsulation header) of a message object.
+
+    Accepts rosbags dataclasses (``__msgtype__``) and the node runtime's message objects
+    (classes from :func:`dbcslam_ros.runtime.message_class`, or rclpy's on a ROS machine).
 
     Returns:
         (message type name, CDR bytes).
@@ -103,14 +106,24 @@ def serialize(message: object) -> tuple[str, bytes]:
     """
     msgtype = getattr(message, "__msgtype__", None)
     if not isinstance(msgtype, str):
-        msg = f"{type(message).__name__} is not a ROS message (no __msgtype__)"
-        raise BagError(msg)
+        return _serialize_runtime(message)
     try:
         data = jazzy_typestore().serialize_cdr(message, msgtype)
     except Exception as err:
         msg = f"cannot serialize a {msgtype} message: {err}".splitlines()[0]
         raise BagError(msg) from err
     return msgtype, bytes(data)
+
+
+def _serialize_runtime(message: object) -> tuple[str, bytes]:
+    from dbcslam_ros import runtime as rt
+
+    try:
+        name = rt.type_name_of(message)
+        return name, rt.encode(message)
+    except Exception as err:
+        msg = f"{type(message).__name__} is not a ROS message object: {err}".splitlines()[0]
+        raise BagError(msg) from err
 
 
 def deserialize(data: bytes | memoryview, msgtype: str) -> Any:

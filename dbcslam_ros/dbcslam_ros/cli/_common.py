@@ -30,11 +30,13 @@ __all__ = [
     "StopSignal",
     "add_qos_arguments",
     "bag_qos_to_runtime",
+    "native_qos",
     "node_session",
     "positive_float",
     "qos_from_arguments",
     "runtime_qos_to_bag",
     "subscription_qos_for",
+    "unique_node_name",
 ]
 
 
@@ -122,6 +124,11 @@ def node_session(name: str) -> Iterator[tuple[Any, Any, StopSignal]]:
         finally:
             rt.try_shutdown()
             stop.restore()
+
+
+def native_qos(rt: Any, qos: QoSProfile) -> Any:
+    """The backend's QoS object for a neutral profile (rclpy ``QoSProfile`` on rclpy)."""
+    return rt.make_qos(qos.reliability, qos.durability, qos.history, qos.depth)
 
 
 def unique_node_name(base: str) -> str:

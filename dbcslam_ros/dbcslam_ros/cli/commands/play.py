@@ -7,7 +7,12 @@ import sys
 import time
 from typing import Any
 
-from dbcslam_ros.cli._common import bag_qos_to_runtime, node_session, positive_float
+from dbcslam_ros.cli._common import (
+    bag_qos_to_runtime,
+    native_qos,
+    node_session,
+    positive_float,
+)
 from dbcslam_ros.cli.registry import Command
 from dbcslam_ros.errors import BagError
 
@@ -99,22 +104,23 @@ def _select_topics(args: argparse.Namespace, bags: list[Any]) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dbcslam_ros.runtime.qos import named_profile
-
     bags = _open_bags(args)
     topics = _select_topics(args, bags)
     published = 0
     with node_session(PLAYER_NODE) as (rt, node, stop):
         pubs = {
             t.name: rt.create_raw_publisher(
-                node, t.msgtype, t.name, bag_qos_to_runtime(t.offered_qos, min_depth=_MIN_DEPTH)
+                node,
+                t.msgtype,
+                t.name,
+                native_qos(rt, bag_qos_to_runtime(t.offered_qos, min_depth=_MIN_DEPTH)),
             )
             for t in topics.values()
         }
         clock_pub = None
         if args.clock is not None:
             clock_pub = rt.create_raw_publisher(
-                node, "rosgraph_msgs/msg/Clock", "/clock", named_profile("clock")
+                node, "rosgraph_msgs/msg/Clock", "/clock", rt.qos_profile("clock")
             )
         if args.delay > 0:
             stop.wait(args.delay)

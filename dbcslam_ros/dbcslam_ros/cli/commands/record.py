@@ -8,6 +8,7 @@ import time
 from typing import Any
 
 from dbcslam_ros.cli._common import (
+    native_qos,
     node_session,
     positive_float,
     runtime_qos_to_bag,
@@ -89,7 +90,7 @@ class _Recorder:
                 self.writer.write(topic, data, time.time_ns())
 
             self.subscribed[topic] = self.rt.create_raw_subscription(
-                self.node, type_name, topic, on_message, qos
+                self.node, type_name, topic, on_message, native_qos(self.rt, qos)
             )
             print(f"recording {topic} [{type_name}]", file=sys.stderr, flush=True)
 

@@ -13,6 +13,7 @@ from typing import Any
 
 from dbcslam_ros.cli._common import (
     add_qos_arguments,
+    native_qos,
     node_session,
     positive_float,
     qos_from_arguments,
@@ -101,7 +102,9 @@ def _run_echo(args: argparse.Namespace) -> int:
         type_name, offered = found
         qos = qos_from_arguments(args, offered)
         pending: deque[bytes] = deque()
-        rt.create_raw_subscription(node, type_name, args.topic, pending.append, qos)
+        rt.create_raw_subscription(
+            node, type_name, args.topic, pending.append, native_qos(rt, qos)
+        )
         deadline = None if args.timeout is None else time.monotonic() + args.timeout
         while not stop.stopped:
             rt.spin_once(node, timeout_sec=0.05)
@@ -134,7 +137,7 @@ def _run_hz(args: argparse.Namespace) -> int:
         def on_message(_data: bytes) -> None:
             times.append(time.monotonic_ns())
 
-        rt.create_raw_subscription(node, type_name, args.topic, on_message, qos)
+        rt.create_raw_subscription(node, type_name, args.topic, on_message, native_qos(rt, qos))
         next_report = time.monotonic() + 1.0
         seen = 0
         while not stop.stopped:
