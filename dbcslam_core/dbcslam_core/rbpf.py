@@ -181,6 +181,7 @@ class FilterConfig:
                 "free_weight": 1.0,
                 "map_range": (-0.2, 0.2),
                 "friction_hold_steps": 20,
+                "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
             }

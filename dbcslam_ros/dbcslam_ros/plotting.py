@@ -8,7 +8,7 @@ The non-interactive Agg backend is selected on import; no display is ever needed
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -309,124 +309,95 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def _new(figsize: tuple[float, float] = (6.0, 3.6)) -> tuple[Figure, Axes]:
-    fig, ax = plt.subplots(figsize=figsize)
-    return fig, ax
-
-
-def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge") -> list[Path]:
-    """Write the edge (table polishing) figures of one run; returns the PNG paths.
-
-    Files: ``{prefix}_trajectory.png`` (a), ``{prefix}_x_time.png`` (b),
-    ``{prefix}_contact.png`` (c), ``{prefix}_sticking.png`` (d),
-    ``{prefix}_friction.png`` (e: posterior over time and map along the edge).
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tr = trace
-    paths: list[Path] = []
-    rough = list(tr.rough_intervals)
-    true_stick = tr.true_modes[:, 0] == 1
-    true_contact = tr.true_modes[:, 0] != 0
+def _edge_trajectory(ax: Axes, tr: RunTrace) -> None:
     base = tr.baseline_q
-
-    fig, ax = _new((6.5, 3.8))
     plot_trajectory_xy(
         ax,
         tr.true_q[:, :2],
         tr.obs_q[:, :2],
         tr.est_q[:, :2],
-        rough_x=rough,
+        rough_x=list(tr.rough_intervals),
         edge_y=tr.edge_y,
         baseline_xy=None if base is None else base[:, :2],
         baseline_label=tr.baseline_label,
         title=f"Edge: point-mass trajectory (seed {tr.seed})",
     )
-    paths.append(_save(fig, out / f"{prefix}_trajectory.png"))
 
-    fig, ax = _new()
+
+def _edge_x_time(ax: Axes, tr: RunTrace) -> None:
+    base = tr.baseline_q
     plot_value_vs_time(
         ax,
         tr.t,
         tr.true_q[:, 0],
         tr.obs_q[:, 0],
         tr.est_q[:, 0],
-        shade=true_stick,
+        shade=tr.true_modes[:, 0] == 1,
         shade_label="true sticking",
         ylabel="x [m]",
         title="Edge: x over time (true sticking shaded)",
         baseline=None if base is None else base[:, 0],
         baseline_label=tr.baseline_label,
     )
-    paths.append(_save(fig, out / f"{prefix}_x_time.png"))
 
-    fig, ax = _new()
+
+def _edge_contact(ax: Axes, tr: RunTrace) -> None:
     plot_contact_probability(
         ax,
         tr.t,
         1.0 - tr.est_modes[:, 0, 0],
-        true_contact,
+        tr.true_modes[:, 0] != 0,
         title="Edge: P(contact) (true contact shaded)",
     )
-    paths.append(_save(fig, out / f"{prefix}_contact.png"))
 
-    fig, ax = _new()
+
+def _edge_sticking(ax: Axes, tr: RunTrace) -> None:
     p_stick = tr.est_modes[:, 0, 1] / np.maximum(1.0 - tr.est_modes[:, 0, 0], 1e-12)
     plot_stick_probability(
         ax,
         tr.t,
         np.clip(p_stick, 0.0, 1.0),
-        true_stick,
+        tr.true_modes[:, 0] == 1,
         title="Edge: P(sticking | contact) (true sticking shaded)",
     )
-    paths.append(_save(fig, out / f"{prefix}_sticking.png"))
 
-    fig, axs = plt.subplots(1, 2, figsize=(11.0, 3.6))
+
+def _edge_friction_time(ax: Axes, tr: RunTrace) -> None:
     low = int(np.argmin(tr.candidates))
     in_rough = np.zeros(tr.t.size, dtype=bool)
-    for a, b in rough:
+    for a, b in tr.rough_intervals:
         in_rough |= (tr.true_q[:, 0] >= a) & (tr.true_q[:, 0] <= b)
     plot_friction_posterior(
-        axs[0],
+        ax,
         tr.t,
         tr.friction_post,
         tr.candidates,
         highlight=low,
-        shade=in_rough & true_contact,
+        shade=in_rough & (tr.true_modes[:, 0] != 0),
         shade_label="contact in rough region",
         title="Edge: friction posterior over time",
     )
-    if tr.map_edges is not None and tr.map_post is not None:
-        plot_friction_map(
-            axs[1],
-            tr.map_edges,
-            tr.map_post[:, low],
-            rough_x=rough,
-            step_x=tr.est_q[true_contact, 0],
-            step_p=tr.friction_post[true_contact, low],
-            weight=tr.map_weight,
-            candidate=float(tr.candidates[low]),
-        )
-    else:
-        axs[1].set_axis_off()
-    paths.append(_save(fig, out / f"{prefix}_friction.png"))
-    return paths
 
 
-def save_gripper_figures(
-    trace: RunTrace, out_dir: Path | str, prefix: str = "gripper"
-) -> list[Path]:
-    """Write the gripper figures of one run (Fig. 4): CoM trajectory, yaw, P(mu true), hypotheses.
+def _edge_friction_map(ax: Axes, tr: RunTrace) -> None:
+    if tr.map_edges is None or tr.map_post is None:
+        ax.set_axis_off()
+        return
+    low = int(np.argmin(tr.candidates))
+    true_contact = tr.true_modes[:, 0] != 0
+    plot_friction_map(
+        ax,
+        tr.map_edges,
+        tr.map_post[:, low],
+        rough_x=list(tr.rough_intervals),
+        step_x=tr.est_q[true_contact, 0],
+        step_p=tr.friction_post[true_contact, low],
+        weight=tr.map_weight,
+        candidate=float(tr.candidates[low]),
+    )
 
-    Files: ``{prefix}_com.png``, ``{prefix}_yaw.png``, ``{prefix}_friction.png``,
-    ``{prefix}_hypotheses.png``.
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tr = trace
-    paths: list[Path] = []
 
-    fig, ax = _new((5.0, 4.2))
+def _gripper_com(ax: Axes, tr: RunTrace) -> None:
     plot_trajectory_xy(
         ax,
         tr.true_q[:, :2],
@@ -434,9 +405,9 @@ def save_gripper_figures(
         tr.est_q[:, :2],
         title=f"Gripper: centre-of-mass trajectory (seed {tr.seed})",
     )
-    paths.append(_save(fig, out / f"{prefix}_com.png"))
 
-    fig, ax = _new()
+
+def _gripper_yaw(ax: Axes, tr: RunTrace) -> None:
     yaw_true = np.unwrap(tr.true_q[:, 2])
     plot_value_vs_time(
         ax,
@@ -447,24 +418,97 @@ def save_gripper_figures(
         ylabel="yaw (unwrapped) [rad]",
         title="Gripper: orientation over time",
     )
-    paths.append(_save(fig, out / f"{prefix}_yaw.png"))
 
-    fig, ax = _new()
+
+def _gripper_friction(ax: Axes, tr: RunTrace) -> None:
     ti = tr.true_friction_index
-    mu = float(tr.candidates[ti])
-    ax.plot(tr.t, tr.friction_post[:, ti], **{**EST_STYLE, "label": f"P(mu = {mu:g})"})
-    any_contact = np.any(tr.true_modes != 0, axis=1)
-    shade_mask(ax, tr.t, any_contact, "true contact (any)")
-    _prob_axes(ax, f"Gripper: probability of the true friction mu = {mu:g}", "probability [-]")
-    paths.append(_save(fig, out / f"{prefix}_friction.png"))
-
-    fig, ax = _new()
-    if tr.live_hypotheses is not None:
-        plot_live_hypotheses(ax, tr.t, tr.live_hypotheses, total=tr.n_joint_modes)
-    else:
+    if ti < 0:
         ax.set_axis_off()
-    paths.append(_save(fig, out / f"{prefix}_hypotheses.png"))
+        return
+    mu = float(tr.candidates[ti])
+    shade_mask(ax, tr.t, np.any(tr.true_modes != 0, axis=1), "true contact (any)")
+    ax.plot(tr.t, tr.friction_post[:, ti], **{**EST_STYLE, "label": f"P(mu = {mu:g})"})
+    _prob_axes(ax, f"Gripper: probability of the true friction mu = {mu:g}", "probability [-]")
+
+
+def _gripper_hypotheses(ax: Axes, tr: RunTrace) -> None:
+    if tr.live_hypotheses is None:
+        ax.set_axis_off()
+        return
+    plot_live_hypotheses(ax, tr.t, tr.live_hypotheses, total=tr.n_joint_modes)
+
+
+_Panel = Callable[["Axes", "RunTrace"], None]
+
+
+def _write_panels(
+    tr: RunTrace,
+    out: Path,
+    singles: Sequence[tuple[str, tuple[float, float], Sequence[_Panel]]],
+    overview: tuple[str, int, int, Sequence[_Panel]],
+) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    for name, size, panels in singles:
+        fig, axs = plt.subplots(1, len(panels), figsize=size, squeeze=False)
+        for ax, draw in zip(axs[0], panels, strict=True):
+            draw(ax, tr)
+        paths.append(_save(fig, out / name))
+    name, rows, cols, panels = overview
+    fig, axs = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.6 * rows), squeeze=False)
+    flat = list(axs.ravel())
+    for ax, draw in zip(flat, panels, strict=False):
+        draw(ax, tr)
+    for ax in flat[len(panels) :]:
+        ax.set_axis_off()
+    paths.append(_save(fig, out / name))
     return paths
+
+
+def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge") -> list[Path]:
+    """Write the edge (table polishing, Fig. 3) figures of one run; returns the PNG paths.
+
+    Files: ``{prefix}_trajectory.png`` (x-y, rough region shaded), ``{prefix}_x_time.png``
+    (x vs time, true sticking shaded), ``{prefix}_contact.png`` (P(contact), true contact
+    shaded), ``{prefix}_sticking.png`` (P(sticking | contact), true sticking shaded),
+    ``{prefix}_friction.png`` (friction posterior over time and the friction map along the
+    edge) and ``{prefix}_overview.png`` (all panels).
+    """
+    singles: list[tuple[str, tuple[float, float], Sequence[_Panel]]] = [
+        (f"{prefix}_trajectory.png", (6.5, 3.8), [_edge_trajectory]),
+        (f"{prefix}_x_time.png", (6.0, 3.6), [_edge_x_time]),
+        (f"{prefix}_contact.png", (6.0, 3.6), [_edge_contact]),
+        (f"{prefix}_sticking.png", (6.0, 3.6), [_edge_sticking]),
+        (f"{prefix}_friction.png", (11.0, 3.6), [_edge_friction_time, _edge_friction_map]),
+    ]
+    panels: list[_Panel] = [
+        _edge_trajectory,
+        _edge_x_time,
+        _edge_friction_map,
+        _edge_contact,
+        _edge_sticking,
+        _edge_friction_time,
+    ]
+    return _write_panels(trace, Path(out_dir), singles, (f"{prefix}_overview.png", 2, 3, panels))
+
+
+def save_gripper_figures(
+    trace: RunTrace, out_dir: Path | str, prefix: str = "gripper"
+) -> list[Path]:
+    """Write the gripper figures of one run (Fig. 4); returns the PNG paths.
+
+    Files: ``{prefix}_com.png`` (centre-of-mass trajectory), ``{prefix}_yaw.png`` (yaw vs
+    time), ``{prefix}_friction.png`` (P(true mu) vs time), ``{prefix}_hypotheses.png`` (live
+    hypotheses per particle) and ``{prefix}_overview.png`` (all panels).
+    """
+    singles: list[tuple[str, tuple[float, float], Sequence[_Panel]]] = [
+        (f"{prefix}_com.png", (5.0, 4.2), [_gripper_com]),
+        (f"{prefix}_yaw.png", (6.0, 3.6), [_gripper_yaw]),
+        (f"{prefix}_friction.png", (6.0, 3.6), [_gripper_friction]),
+        (f"{prefix}_hypotheses.png", (6.0, 3.6), [_gripper_hypotheses]),
+    ]
+    panels: list[_Panel] = [_gripper_com, _gripper_yaw, _gripper_friction, _gripper_hypotheses]
+    return _write_panels(trace, Path(out_dir), singles, (f"{prefix}_overview.png", 2, 2, panels))
 
 
 def save_run_figures(trace: RunTrace, out_dir: Path | str) -> list[Path]:

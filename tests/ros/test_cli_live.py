@@ -24,6 +24,7 @@ from rosbags.highlevel import AnyReader
 
 from dbcslam_ros.bag import jazzy_typestore, open_bag
 from dbcslam_ros.bag.metadata import load_metadata
+from dbcslam_ros.errors import BagError
 
 HELPER = '''
 """Test helper processes for test_cli_live.py (publisher, subscriber)."""
@@ -284,3 +285,24 @@ def test_topic_echo_prints_yaml_documents_list_shows_types_hz_measures(
     missing = run("topic", "echo", "/does_not_exist", "--timeout", "1")
     assert missing.returncode == 2
     assert "/does_not_exist" in missing.stderr
+
+
+def test_killed_recorder_leaves_a_salvageable_bag(
+    tmp_path: Path, node_process: Callable[..., Any], helper_env: dict[str, str]
+) -> None:
+    bag = tmp_path / "killed"
+    published = tmp_path / "published.txt"
+    rec = node_process("dbcslam_ros.cli", "record", "-o", str(bag), "/chatter", "-q")
+    pub = node_process("h2_cli_helper", "stream", str(published), env=helper_env)
+    assert pub.wait_for_log("matched", 30), pub.log()
+    time.sleep(2.5)  # the recorder flushes a chunk to disk every second
+    os.kill(rec.pid, signal.SIGKILL)
+    rec.proc.wait(10)
+    assert not (bag / "metadata.yaml").exists()
+    with pytest.raises(BagError, match="truncated"):
+        open_bag(bag)
+    with open_bag(bag, salvage=True) as reader:
+        assert reader.damage is not None
+        recorded = [m.data for m in reader.messages(["/chatter"])]
+    assert len(recorded) > 5
+    assert recorded == _hex_lines(published)[: len(recorded)]
