@@ -25,6 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "dbcslam = dbcslam_ros.cli:main",
+            "filter_node = dbcslam_ros.filter_node:main",
             "talker = dbcslam_ros.demo_nodes:talker_main",
             "listener = dbcslam_ros.demo_nodes:listener_main",
         ],

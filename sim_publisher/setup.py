@@ -23,5 +23,5 @@ setup(
     description="pybullet simulator node for DBC-SLAM scenarios.",
     license="Apache-2.0",
     python_requires=">=3.11",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["sim_node = sim_publisher.node:main"]},
 )

@@ -119,6 +119,9 @@ class NCPFilterConfig:
     ESS < ess_threshold * P. pgs_max_iter / pgs_tol: PGS settings for ``solver="pgs"``.
     proposal: ``bootstrap`` (sample the noise from the prior, weigh by the likelihood) or
     ``optimal`` (the same closed-form Gaussian proposal as DBC-SLAM around the LCP solution).
+    active_set: pass ``active_set=True`` to :class:`PlanarModel` (Lemke only: each particle's
+    LCP is solved over the contacts that can close, exact, much faster when most contacts are
+    open); False = the straightforward full LCP per particle.
     """
 
     particles: int = 500
@@ -134,6 +137,7 @@ class NCPFilterConfig:
     pgs_max_iter: int = 100
     pgs_tol: float = 1e-8
     proposal: str = "bootstrap"
+    active_set: bool = False
 
     default_noise: dict[str, tuple[float, ...]] = field(
         default_factory=lambda: {
@@ -234,7 +238,12 @@ class BlackBoxNCPFilter:
         self.scenario = scenario
         self.config = config if config is not None else NCPFilterConfig()
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.model = PlanarModel(scenario, extensions, solver=_make_solver(self.config))
+        self.model = PlanarModel(
+            scenario,
+            extensions,
+            solver=_make_solver(self.config),
+            active_set=self.config.active_set,
+        )
         self.nq = scenario.nq
         self.nc = scenario.n_contacts
         self.sigma_v, self.sigma_q = self.config.noise_for(scenario)

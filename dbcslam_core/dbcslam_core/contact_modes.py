@@ -153,8 +153,8 @@ def solve_reduced(
         mu_a.shape[:-1],
     )
     # Free-motion contact velocities (independent of the assignment).
-    an = np.einsum("...cv,...v->...c", jn_a, vf) - vne + phi_a / dt
-    at = np.einsum("...cv,...v->...c", jt_a, vf) - vte
+    an = (jn_a @ vf[..., None])[..., 0] - vne + phi_a / dt
+    at = (jt_a @ vf[..., None])[..., 0] - vte
 
     mdb = np.broadcast_to(md, (*lead, n_c))
     act = np.flatnonzero(np.any(mdb != Mode.SEPARATED, axis=tuple(range(len(lead)))))
@@ -166,7 +166,7 @@ def solve_reduced(
     if n_a:
         w = np.concatenate([jn_a[..., act, :], jt_a[..., act, :]], axis=-2)  # (.., 2Ca, nv)
         wm = w * im[..., None, :]
-        d = np.einsum("...iv,...jv->...ij", wm, w)  # Delassus (.., 2Ca, 2Ca)
+        d = wm @ np.swapaxes(w, -1, -2)  # Delassus (.., 2Ca, 2Ca)
         diag_mean = np.mean(np.diagonal(d, axis1=-2, axis2=-1), axis=-1)
         eps = eps_rel * np.maximum(diag_mean, 1e-300)
         eye = np.eye(2 * n_a)
@@ -202,13 +202,12 @@ def solve_reduced(
         lam = sol_all[..., 0]
         ln[..., act] = lam[..., :n_a]
         lt[..., act] = lam[..., n_a:]
-        dv = im * np.einsum("...iv,...i->...v", w, lam)
-        response = np.eye(nv) + im[..., :, None] * np.einsum(
-            "...iv,...ij->...vj", w, sol_all[..., 1:]
-        )
+        wt_sol = np.swapaxes(w, -1, -2) @ sol_all  # (.., nv, 1 + nv)
+        dv = im * wt_sol[..., 0]
+        response = np.eye(nv) + im[..., :, None] * wt_sol[..., 1:]
     v_next = np.broadcast_to(vf, (*lead, nv)) + dv
-    gap_rate = np.einsum("...cv,...v->...c", jn_a, v_next) - vne + phi_a / dt
-    vt = np.einsum("...cv,...v->...c", jt_a, v_next) - vte
+    gap_rate = (jn_a @ v_next[..., None])[..., 0] - vne + phi_a / dt
+    vt = (jt_a @ v_next[..., None])[..., 0] - vte
     gap_rate = np.broadcast_to(gap_rate, (*lead, n_c))
     vt = np.broadcast_to(vt, (*lead, n_c))
     mu_b = np.broadcast_to(mu_a, (*lead, n_c))

@@ -410,12 +410,14 @@ def run_black_box(
     seed: int,
     particles: int = 500,
     solver: str = "pgs",
+    active_set: bool = False,
     config: NCPFilterConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> RunTrace:
     """The black-box NCP particle filter over `tr` (solver ``lemke`` or ``pgs``).
 
-    Unless `config` is given it uses the same process noise as the DBC-SLAM preset.
+    Unless `config` is given it uses the same process noise as the DBC-SLAM preset;
+    active_set: Lemke over the contacts that can close only (method ``blackbox_lemke_as``).
     """
     if config is None:
         base = FilterConfig.preset(tr.scenario.kind)
@@ -428,12 +430,13 @@ def run_black_box(
             init_velocity_std=base.init_velocity_std,
             warmup_steps=base.warmup_steps,
             warmup_boost=base.warmup_boost,
+            active_set=active_set,
         )
     filt = BlackBoxNCPFilter(tr.scenario, config, np.random.default_rng([seed, 3]))
     return run_filter(
         filt,
         tr,
-        method=f"blackbox_{config.solver}",
+        method=f"blackbox_{config.solver}" + ("_as" if config.active_set else ""),
         seed=seed,
         particles=config.particles,
         progress=progress,

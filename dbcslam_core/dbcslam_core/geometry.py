@@ -7,6 +7,7 @@ obstacle towards the body), tangent t = (n_y, -n_x).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -15,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ModelError
-from .scenario import Disk, HalfSpace, Scenario
+from .scenario import PRESSURE_MODELS, Disk, HalfSpace, Scenario
 
 __all__ = [
     "ContactKinematics",
@@ -26,6 +27,7 @@ __all__ = [
     "polygon_inertia",
     "rot",
     "rotate",
+    "support_points",
     "wrap_angle",
 ]
 
@@ -102,6 +104,120 @@ def polygon_inertia(
     a = 0.5 * np.sum(cr)
     j = np.sum(cr * (np.sum(v * v, 1) + np.sum(v * w, 1) + np.sum(w * w, 1))) / 12.0
     return float(mass * j / a)
+
+
+def _subdivided_triangles(tris: F64, k: int) -> tuple[F64, F64]:
+    """Centroids and areas of the k^2 congruent sub-triangles of each triangle (T, 3, 2)."""
+    up = [(i + 1.0 / 3.0, j + 1.0 / 3.0) for i in range(k) for j in range(k - i)]
+    down = [(i + 2.0 / 3.0, j + 2.0 / 3.0) for i in range(k - 1) for j in range(k - 1 - i)]
+    bary = np.asarray(up + down, dtype=np.float64) / k  # (k^2, 2) coordinates along AB, AC
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    pts = a[:, None] + bary[None, :, :1] * (b - a)[:, None] + bary[None, :, 1:] * (c - a)[:, None]
+    area = 0.5 * cross2(b - a, c - a)
+    w = np.repeat(area[:, None] / (k * k), k * k, axis=1)
+    return pts.reshape(-1, 2), w.reshape(-1)
+
+
+def _uniform_support(v: F64, target: int) -> tuple[F64, F64]:
+    n = len(v)
+    for apex in (np.zeros(2), v[0]):
+        tris = np.stack([np.broadcast_to(apex, v.shape), v, np.roll(v, -1, axis=0)], axis=1)
+        area = 0.5 * cross2(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        if np.all(area >= -1e-15 * np.max(np.abs(v)) ** 2):
+            keep = area > 0.0
+            k = max(1, round(math.sqrt(target / max(int(np.sum(keep)), 1))))
+            return _subdivided_triangles(tris[keep], k)
+    msg = (
+        f"pressure 'uniform' needs an outline that is star-shaped about its centre of mass or "
+        f"vertex 0 ({n} vertices given); use pressure 'rim', 'centre' or 'tripod'"
+    )
+    raise ModelError(msg)
+
+
+def _rim_support(v: F64, target: int) -> tuple[F64, F64]:
+    e = np.roll(v, -1, axis=0) - v
+    length = np.linalg.norm(e, axis=1)
+    per = float(np.sum(length))
+    pts: list[F64] = []
+    wts: list[F64] = []
+    for a, d, ln_ in zip(v, e, length, strict=True):
+        m = max(1, math.ceil(target * ln_ / per))
+        f = (np.arange(m) + 0.5) / m
+        pts.append(a + f[:, None] * d)
+        wts.append(np.full(m, ln_ / m))
+    return np.concatenate(pts), np.concatenate(wts)
+
+
+def _tripod_support(v: F64) -> tuple[F64, F64]:
+    e = np.roll(v, -1, axis=0) - v
+    # distance from the origin to each edge line (inside: > 0 for a CCW outline)
+    dist = cross2(e, -v) / np.linalg.norm(e, axis=1)
+    r = 0.9 * float(np.min(dist))
+    if r <= 0.0:
+        msg = "pressure 'tripod' needs the centre of mass inside the outline"
+        raise ModelError(msg)
+    ang = np.pi / 2.0 + 2.0 * np.pi * np.arange(3) / 3.0
+    return r * np.stack([np.cos(ang), np.sin(ang)], -1), np.full(3, 1.0)
+
+
+@lru_cache(maxsize=64)
+def _support_cached(
+    verts: tuple[tuple[float, float], ...], pressure: str, target: int
+) -> tuple[F64, F64]:
+    v = np.asarray(verts, dtype=np.float64)
+    if len(v) == 1 or pressure == "centre":
+        p, w = np.zeros((1, 2)), np.ones(1)
+    elif pressure == "uniform":
+        p, w = _uniform_support(v, target)
+    elif pressure == "rim":
+        p, w = _rim_support(v, target)
+    else:
+        p, w = _tripod_support(v)
+    w = w / np.sum(w)
+    p = p - w @ p  # the pressure centre is the centre of mass (moment balance)
+    p.setflags(write=False)
+    w.setflags(write=False)
+    return p, w
+
+
+def support_points(
+    vertices: Sequence[Sequence[float]] | ArrayLike,
+    pressure: str = "uniform",
+    *,
+    rim_fraction: float | None = None,
+    target: int = 96,
+) -> tuple[F64, F64]:
+    """Points (N, 2) (body frame, m) and weights (N,) (sum 1) carrying the support pressure.
+
+    Point i carries the normal force w_i m g. pressure (one of `scenario.PRESSURE_MODELS`):
+    ``uniform`` - the outline area, triangulated from the centre of mass (else from vertex 0)
+    and each triangle cut into k^2 equal sub-triangles (their centroids, weights = areas;
+    about `target` points); ``rim`` - the outline, each edge cut into pieces of about
+    perimeter / target (midpoints, weights = lengths); ``centre`` - one point at the centre
+    of mass (no rotational support friction); ``tripod`` - three equal points at 120 deg on
+    a circle of 0.9 x the largest radius about the centre of mass that fits in the outline.
+    rim_fraction in [0, 1] (the ``support_pressure`` effect): the weights are
+    (1 - f) x ``uniform`` and f x ``rim`` instead. The points are shifted so that the
+    pressure centre sum w_i p_i is the centre of mass (0, 0) exactly (static moment balance on
+    a flat support). A point mass (no vertices) gets the single point (0, 0).
+    """
+    v = _poly(vertices) if np.size(vertices) else np.zeros((1, 2))
+    if pressure not in PRESSURE_MODELS:
+        msg = f"unknown pressure distribution {pressure!r}; valid are {list(PRESSURE_MODELS)}"
+        raise ModelError(msg)
+    key = tuple((float(x), float(y)) for x, y in v)
+    if rim_fraction is None:
+        return _support_cached(key, pressure, target)
+    f = float(rim_fraction)
+    if not 0.0 <= f <= 1.0:
+        msg = f"rim_fraction must lie in [0, 1], got {rim_fraction}"
+        raise ModelError(msg)
+    pu, wu = _support_cached(key, "uniform", target)
+    pr, wr = _support_cached(key, "rim", target)
+    p = np.concatenate([pu, pr])
+    w = np.concatenate([(1.0 - f) * wu, f * wr])
+    keep = w > 0.0
+    return p[keep], w[keep]
 
 
 @dataclass(frozen=True)

@@ -324,8 +324,9 @@ def gaussian_proposal(
     logdet = 2.0 * np.sum(np.log(np.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
     maha = np.sum(y * x[..., 0], axis=-1)
     log_pred = -0.5 * (maha + logdet + n_d * _LOG_2PI)
-    v_mean = vh + np.einsum("...vd,...d->...v", c, x[..., 0])
-    v_cov = sv - np.einsum("...vd,...dw->...vw", c, x[..., 1:])
+    cx = c @ x  # (..., nv, 1 + nv)
+    v_mean = vh + cx[..., 0]
+    v_cov = sv - cx[..., 1:]
     r_q = sq[idx] ** 2 + obs.var
     q_gain[idx] = sq[idx] ** 2 / r_q
     q_std[idx] = np.sqrt(sq[idx] ** 2 * obs.var / r_q)
@@ -342,6 +343,7 @@ def gaussian_proposal(
 
 def sample_gaussian_proposal(
     prop: GaussianProposal,
+    *,
     v_h: npt.ArrayLike,
     innovation: npt.ArrayLike,
     v_mean: npt.ArrayLike,

@@ -481,9 +481,7 @@ class DbcSlamFilter:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         sig2 = (self._sigma_v * boost) ** 2
         resp = sol.response  # (P, K, B, nv, nv)
-        cov_h = np.einsum("...ij,j,...kj->...ik", resp, sig2, resp) + cfg.constrained_noise * (
-            np.diag(sig2)
-        )
+        cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
         prop = gaussian_proposal(
             self.q[:, None, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
         )
@@ -496,12 +494,12 @@ class DbcSlamFilter:
         rows = np.arange(n_p)
         v_new, e_q = sample_gaussian_proposal(
             prop,
-            v_h[rows, k_star, b_star],
-            prop.innovation[rows, k_star, b_star],
-            prop.v_mean[rows, k_star, b_star],
-            prop.v_cov[rows, k_star, b_star],
-            dt,
-            self.rng,
+            v_h=v_h[rows, k_star, b_star],
+            innovation=prop.innovation[rows, k_star, b_star],
+            v_mean=prop.v_mean[rows, k_star, b_star],
+            v_cov=prop.v_cov[rows, k_star, b_star],
+            dt=dt,
+            rng=self.rng,
         )
         q_new = self.q + dt * v_new + e_q
         if self.nq == 3:
@@ -625,11 +623,15 @@ class DbcSlamFilter:
         fp = np.concatenate([e[0] for e in entries], axis=0)  # (N, pairs, Kmax)
         s = np.concatenate([e[1] for e in entries], axis=0)  # (N, C)
         pc = np.concatenate([e[2] for e in entries], axis=0)  # (N, C)
-        ww = np.tile(w, len(entries))
-        for c in range(self.n_c):
-            pr = int(self._contact_pair[c])
+        weight = np.tile(w, len(entries))[:, None] * pc  # (N, C)
+        keep = weight > 1e-9
+        for pr in range(self.n_pairs):
+            sel = keep & (self._contact_pair == pr)[None, :]  # (N, C)
+            if not sel.any():
+                continue
+            rows, cols = np.nonzero(sel)
             k = self._n_cand[pr]
-            fmap.add(pr, s[:, c], fp[:, pr, :k], ww * pc[:, c])
+            fmap.add(pr, s[rows, cols], fp[rows, pr, :k], weight[rows, cols])
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""

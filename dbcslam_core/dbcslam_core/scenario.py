@@ -21,8 +21,12 @@ Scenario keys added here (defaults shown):
   ``lower_jaw`` and obstacle ``upper`` with normal -y at y = joint ``upper_jaw``. Jaws are
   infinitely long; the support plane is frictionless.
 * push: ``pusher: {radius: 0.01, joint_x: pusher_x, joint_y: pusher_y}`` (a disk pusher)
-  and ``surface: {pair: null, ...}`` (support friction, kept for a later issue: `pair`
-  must name a friction pair if given; other numeric keys are kept verbatim).
+  and ``surface: {pair: null, pressure: uniform, mu: 0.0, velocity_eps: 1.0e-4}`` (support
+  friction, all keys optional: `pair` names the friction pair of the body-support contact,
+  estimated like any pair; without a pair the coefficient is the known `mu` (default 0,
+  frictionless); `pressure` is the pressure distribution ``uniform | rim | centre | tripod``
+  (`geometry.support_points`); `velocity_eps` (m/s) regularises the Coulomb support friction
+  (`PlanarModel.support_matrix`); other numeric keys are kept verbatim).
 
 ``friction.candidates`` / ``friction.prior`` are either one list shared by all pairs or one
 list per pair. Each obstacle belongs to a friction pair: the pair with the obstacle's name,
@@ -48,6 +52,8 @@ import yaml
 from .errors import ScenarioError
 
 __all__ = [
+    "DEFAULT_VELOCITY_EPS",
+    "PRESSURE_MODELS",
     "SCENARIO_KINDS",
     "Body",
     "Disk",
@@ -336,12 +342,56 @@ class Disk:
 Obstacle = HalfSpace | Disk
 
 
+PRESSURE_MODELS: tuple[str, ...] = ("uniform", "rim", "centre", "tripod")
+"""Support pressure distributions (`surface.pressure`, see `geometry.support_points`)."""
+
+DEFAULT_VELOCITY_EPS: float = 1e-4
+"""Default regularisation speed (m/s) of the support friction (`surface.velocity_eps`)."""
+
+
 @dataclass(frozen=True)
 class SurfaceSpec:
-    """Support surface of the push scenario (physics is a later issue; keys kept verbatim)."""
+    """Support surface under a horizontal scenario (the push scenario's table).
+
+    pair: friction pair of the body-support contact (its coefficient is estimated like any
+    pair; None = known coefficient `mu`). params: numeric keys, sorted (name, value) pairs;
+    interpreted: ``mu`` (support coefficient when `pair` is None, default 0 = frictionless),
+    ``velocity_eps`` (m/s, > 0, regularisation speed of the implicit Coulomb support friction,
+    default `DEFAULT_VELOCITY_EPS`); other numeric keys are kept verbatim. pressure: the
+    pressure distribution of the body on the support, one of `PRESSURE_MODELS` (None = not
+    given = ``uniform``; kept as None so that YAML without the key round-trips unchanged).
+    """
 
     pair: str | None = None
     params: tuple[tuple[str, float], ...] = ()
+    pressure: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.pressure is not None and self.pressure not in PRESSURE_MODELS:
+            raise _fail(
+                f"scenario key 'surface.pressure' must be one of {list(PRESSURE_MODELS)}, got "
+                f"{self.pressure!r}"
+            )
+        p = dict(self.params)
+        if "mu" in p:
+            _float(p["mu"], "surface.mu", nonneg=True)
+        if "velocity_eps" in p:
+            _float(p["velocity_eps"], "surface.velocity_eps", positive=True)
+
+    @property
+    def pressure_model(self) -> str:
+        """The pressure distribution name (``uniform`` when not given)."""
+        return self.pressure if self.pressure is not None else "uniform"
+
+    @property
+    def mu(self) -> float:
+        """Known support friction coefficient (used when `pair` is None; default 0)."""
+        return float(dict(self.params).get("mu", 0.0))
+
+    @property
+    def velocity_eps(self) -> float:
+        """Regularisation speed (m/s) of the support friction."""
+        return float(dict(self.params).get("velocity_eps", DEFAULT_VELOCITY_EPS))
 
 
 @dataclass(frozen=True)
@@ -587,10 +637,17 @@ class Scenario:
             pair = sm.get("pair")
             if pair is not None:
                 pair = _str(pair, "surface.pair")
+            pressure = sm.get("pressure")
+            if pressure is not None:
+                pressure = _str(pressure, "surface.pressure")
             params = tuple(
-                sorted((k, _float(v, f"surface.{k}")) for k, v in sm.items() if k != "pair")
+                sorted(
+                    (k, _float(v, f"surface.{k}"))
+                    for k, v in sm.items()
+                    if k not in ("pair", "pressure")
+                )
             )
-            kwargs["surface"] = SurfaceSpec(pair, params)
+            kwargs["surface"] = SurfaceSpec(pair, params, pressure)
         return cls(
             kind=kind,
             dt=_float(data["dt"], "dt", positive=True),
@@ -656,6 +713,8 @@ class Scenario:
                 "joint_y": self.pusher_joint_y,
             }
             surface: dict[str, Any] = {"pair": self.surface.pair}
+            if self.surface.pressure is not None:
+                surface["pressure"] = self.surface.pressure
             surface.update(dict(self.surface.params))
             out["surface"] = surface
         return out
@@ -745,10 +804,16 @@ def push_scenario(
     position_noise: float = 0.001,
     yaw_noise: float = 0.01,
     support_pair: str | None = None,
+    support_mu: float | None = None,
+    pressure: str | None = None,
+    velocity_eps: float | None = None,
 ) -> Scenario:
     """A pushed polygon (outline about its centre of mass) and a disk pusher.
 
     inertia defaults to the uniform-density polar moment of the outline about the origin.
+    support_pair: name of the support friction pair (estimated; second pair after
+    ``pusher``); support_mu: known support coefficient (``surface.mu``, used without a pair);
+    pressure: ``surface.pressure``; velocity_eps: ``surface.velocity_eps`` (m/s).
     """
     verts = tuple((float(v[0]), float(v[1])) for v in vertices)
     if inertia is None:
@@ -770,5 +835,15 @@ def push_scenario(
         ),
         noise=NoiseSpec(position=position_noise, yaw=yaw_noise, joint=0.0005),
         pusher_radius=pusher_radius,
-        surface=SurfaceSpec(support_pair, ()),
+        surface=SurfaceSpec(
+            support_pair,
+            tuple(
+                sorted(
+                    (k, float(v))
+                    for k, v in (("mu", support_mu), ("velocity_eps", velocity_eps))
+                    if v is not None
+                )
+            ),
+            pressure,
+        ),
     )

@@ -8,8 +8,10 @@ What is measured (all on the synthetic paper data of :mod:`dbcslam_core.syntheti
    enumeration is exercised), next to the black-box NCP particle filter
    (:class:`dbcslam_core.baselines.BlackBoxNCPFilter`) at the same particle count on the
    same data, in two variants: ``pgs`` (batched projected Gauss-Seidel over all particles)
-   and ``lemke`` (one Lemke pivoting solve per particle, the straightforward implementation
-   of the paper's comparison; only up to ``--lemke-max`` particles because it is slow).
+   ``lemke`` (one Lemke pivoting solve of the full LCP per particle, the straightforward
+   implementation of the paper's comparison) and ``lemke`` with the model's active-set option
+   (Lemke only over the contacts that can close; exact); the Lemke variants only up to
+   ``--lemke-max`` particles because they are slow.
    Per-step position RMSE on the slice is reported side by side.
 2. Accuracy on the full trajectories at ``--accuracy-particles`` (default 500): DBC-SLAM vs
    the black-box PGS filter (full metrics of :func:`dbcslam_core.experiments.score`).
@@ -128,19 +130,22 @@ def run_bench(
             pgs = run_black_box(part, seed=0, particles=p, solver="pgs")
             row["blackbox_pgs_ms"] = _ms(pgs, warmup)
             row["blackbox_pgs_rmse_mm"] = _rmse_mm(pgs)
-            if p <= lemke_max:
-                lem = run_black_box(part, seed=0, particles=p, solver="lemke")
-                row["blackbox_lemke_ms"] = _ms(lem, warmup)
-                row["blackbox_lemke_rmse_mm"] = _rmse_mm(lem)
-            else:
-                row["blackbox_lemke_ms"] = math.nan
-                row["blackbox_lemke_rmse_mm"] = math.nan
+            for key, act in (("blackbox_lemke", False), ("blackbox_lemke_as", True)):
+                if p <= lemke_max:
+                    lem = run_black_box(part, seed=0, particles=p, solver="lemke", active_set=act)
+                    row[f"{key}_ms"] = _ms(lem, warmup)
+                    row[f"{key}_rmse_mm"] = _rmse_mm(lem)
+                else:
+                    row[f"{key}_ms"] = math.nan
+                    row[f"{key}_rmse_mm"] = math.nan
             row["ratio_lemke_over_dbcslam"] = row["blackbox_lemke_ms"] / row["dbcslam_ms"]
+            row["ratio_lemke_as_over_dbcslam"] = row["blackbox_lemke_as_ms"] / row["dbcslam_ms"]
             row["ratio_pgs_over_dbcslam"] = row["blackbox_pgs_ms"] / row["dbcslam_ms"]
             scaling.append(row)
             say(
                 f"  P={p:6d}: DBC-SLAM {row['dbcslam_ms']:8.2f} ms  black-box PGS "
-                f"{row['blackbox_pgs_ms']:8.2f} ms  Lemke {_fmt(row['blackbox_lemke_ms'])} ms"
+                f"{row['blackbox_pgs_ms']:8.2f} ms  Lemke {_fmt(row['blackbox_lemke_ms'])} ms  "
+                f"Lemke active-set {_fmt(row['blackbox_lemke_as_ms'])} ms"
             )
         if accuracy_particles > 0:
             runs: list[tuple[str, Callable[[], RunTrace]]] = [
@@ -181,17 +186,20 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
         "## Per-step time vs particles (equal particles, equal data)",
         "",
         "| scenario | particles | DBC-SLAM [ms] | black-box PGS [ms] | black-box Lemke [ms] "
-        "| Lemke / DBC-SLAM | PGS / DBC-SLAM | live hyp / particle "
-        "| RMSE DBC / PGS / Lemke [mm] |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| black-box Lemke active-set [ms] | Lemke / DBC | Lemke-AS / DBC | PGS / DBC "
+        "| live hyp / particle | RMSE DBC / PGS / Lemke / Lemke-AS [mm] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["scaling"]:
         lines.append(
             f"| {r['scenario']} | {r['particles']} | {_fmt(r['dbcslam_ms'])} | "
             f"{_fmt(r['blackbox_pgs_ms'])} | {_fmt(r['blackbox_lemke_ms'])} | "
-            f"{_fmt(r['ratio_lemke_over_dbcslam'])} | {_fmt(r['ratio_pgs_over_dbcslam'])} | "
+            f"{_fmt(r['blackbox_lemke_as_ms'])} | "
+            f"{_fmt(r['ratio_lemke_over_dbcslam'])} | "
+            f"{_fmt(r['ratio_lemke_as_over_dbcslam'])} | {_fmt(r['ratio_pgs_over_dbcslam'])} | "
             f"{_fmt(r['dbcslam_live_hypotheses'])} | {_fmt(r['dbcslam_rmse_mm'])} / "
-            f"{_fmt(r['blackbox_pgs_rmse_mm'])} / {_fmt(r['blackbox_lemke_rmse_mm'])} |"
+            f"{_fmt(r['blackbox_pgs_rmse_mm'])} / {_fmt(r['blackbox_lemke_rmse_mm'])} / "
+            f"{_fmt(r['blackbox_lemke_as_rmse_mm'])} |"
         )
     if result["accuracy"]:
         lines += [

@@ -2,17 +2,28 @@
 
 Run: ``dbcslam filter [--params FILE]`` or ``ros2 run dbcslam_ros filter_node``.
 
-The node configures itself from the latched ``/scenario`` (or parameter ``scenario_file``),
-feeds decoded inputs to a :class:`~dbcslam_ros.session.FilterSession` (synchronisation rules
-there) and publishes, for every accepted pose, ``/dbcslam/pose`` first, then odometry, contact
-modes, friction, the friction map, markers and (throttled) ``/diagnostics``. A bad message is
-logged (throttled), counted in ``/diagnostics`` and dropped; the node keeps running.
+The node configures itself from the latched ``/scenario`` (or parameter ``scenario_file``;
+a changed ``/scenario`` reconfigures it), feeds decoded inputs to a
+:class:`~dbcslam_ros.session.FilterSession` (synchronisation rules there) and publishes, for
+every processed pose, ``/dbcslam/pose`` first, then odometry, contact modes, friction, the
+friction map, markers; ``/diagnostics`` every ``diagnostics_period`` s.
+
+Robustness: a bad message (NaN, zero quaternion, stamp going backwards, unknown joint, ...) is
+logged (throttled), counted per reason in ``/diagnostics`` and dropped; the node keeps running.
+A jump back in time (bag played with --loop) resets the filter. A non-finite estimate or a
+failing filter step is never published: it is counted and the filter is reset.
+
+Backlog: poses are queued with depth one. When a new pose arrives before the previous one was
+processed, the older one is dropped (reason ``backlog``) and the next step catches up with at
+most ``catch_up_steps`` model steps (the state is held over the rest of the gap, counted as
+``skipped_steps``), so a filter slower than the input rate lags by a bounded amount.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections import Counter, deque
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +38,7 @@ from dbcslam_core.scenario import Scenario
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import (
     InputRejected,
+    PoseReading,
     estimate_messages,
     joints_from_msg,
     ns_to_stamp,
@@ -34,9 +46,21 @@ from dbcslam_ros.convert import (
     wrench_from_msg,
     yaw_to_quaternion,
 )
+from dbcslam_ros.errors import ParameterError
 from dbcslam_ros.session import FilterSession, StampedEstimate
 
-__all__ = ["PARAMETERS", "FilterNode", "load_extensions", "main"]
+__all__ = ["OUTPUT_TYPES", "PARAMETERS", "FilterNode", "build_config", "load_extensions", "main"]
+
+#: Output topics and their types (contract table), in publication order.
+OUTPUT_TYPES: dict[str, str] = {
+    "/dbcslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/dbcslam/odometry": "nav_msgs/msg/Odometry",
+    "/dbcslam/contact_modes": "std_msgs/msg/Float64MultiArray",
+    "/dbcslam/friction": "std_msgs/msg/Float64MultiArray",
+    "/dbcslam/friction_map": "nav_msgs/msg/OccupancyGrid",
+    "/dbcslam/markers": "visualization_msgs/msg/MarkerArray",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
 
 # name: (default, description). Declared with these types and descriptions.
 PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -55,7 +79,16 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "frame_id": ("world", "frame of the published estimates"),
     "marker_particles": (100, "particles drawn in /dbcslam/markers (0: none)"),
     "diagnostics_period": (1.0, "seconds between /diagnostics messages"),
+    "catch_up_steps": (
+        2,
+        "max model steps run for one pose after poses were dropped for backlog (>= 1)",
+    ),
+    "max_gap": (1.0, "s; a longer gap between poses re-initialises the filter"),
+    "reset_after": (0.5, "s; a jump back in time larger than this resets the filter"),
 }
+
+#: Consecutive gated (outlier) poses after which the filter is re-initialised.
+MAX_CONSECUTIVE_OUTLIERS = 20
 
 MODE_COLOURS = (
     (0.6, 0.6, 0.6),  # separated: grey
@@ -103,6 +136,7 @@ class FilterNode:
             name: node.declare_parameter(name, default, desc(description=text)).value
             for name, (default, text) in PARAMETERS.items()
         }
+        self._check_params()
         self.frame = str(self.params["frame_id"])
         self.session: FilterSession | None = None
         self.scenario: Scenario | None = None
@@ -110,37 +144,25 @@ class FilterNode:
         self.rejected_before_scenario = 0
         self.received = 0
         self.published = 0
-        self.step_times: list[float] = []
-        self.latencies: list[float] = []
+        self.not_published: Counter[str] = Counter()
+        self.backlog_dropped = 0
+        self.step_times: deque[float] = deque(maxlen=200)
+        self.model_steps: deque[int] = deque(maxlen=200)
+        self.latencies: deque[float] = deque(maxlen=200)
         self.last_estimate: StampedEstimate | None = None
-        self._last_diag = 0.0
-        self._t0 = time.monotonic()
+        self._pending: tuple[PoseReading, float] | None = None
+        self._dropped_since_step = False
+        self._outliers_in_row = 0
+        self._rate_window: deque[float] = deque()
 
         sensor = rt.qos_profile("sensor_data", depth=50)
         cls = rt.message_class
         self.pubs = {
-            "/dbcslam/pose": node.create_publisher(
-                cls("geometry_msgs/msg/PoseWithCovarianceStamped"), "/dbcslam/pose", _reliable()
-            ),
-            "/dbcslam/odometry": node.create_publisher(
-                cls("nav_msgs/msg/Odometry"), "/dbcslam/odometry", _reliable()
-            ),
-            "/dbcslam/contact_modes": node.create_publisher(
-                cls("std_msgs/msg/Float64MultiArray"), "/dbcslam/contact_modes", _reliable()
-            ),
-            "/dbcslam/friction": node.create_publisher(
-                cls("std_msgs/msg/Float64MultiArray"), "/dbcslam/friction", _reliable()
-            ),
-            "/dbcslam/friction_map": node.create_publisher(
-                cls("nav_msgs/msg/OccupancyGrid"), "/dbcslam/friction_map", _reliable()
-            ),
-            "/dbcslam/markers": node.create_publisher(
-                cls("visualization_msgs/msg/MarkerArray"), "/dbcslam/markers", _reliable()
-            ),
-            "/diagnostics": node.create_publisher(
-                cls("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", _reliable()
-            ),
+            topic: node.create_publisher(cls(type_name), topic, _reliable())
+            for topic, type_name in OUTPUT_TYPES.items()
         }
+        # Inputs before the pose: a backend that serves subscriptions in creation order then
+        # hands over the inputs of a step before the pose that ends it.
         self.subs = [
             node.create_subscription(
                 cls("std_msgs/msg/String"),
@@ -149,15 +171,16 @@ class FilterNode:
                 rt.qos_profile("latched"),
             ),
             node.create_subscription(
-                cls("geometry_msgs/msg/PoseStamped"), "/object/pose", self.on_pose, sensor
-            ),
-            node.create_subscription(
                 cls("geometry_msgs/msg/WrenchStamped"), "/object/wrench", self.on_wrench, sensor
             ),
             node.create_subscription(
                 cls("sensor_msgs/msg/JointState"), "/joint_states", self.on_joints, sensor
             ),
+            node.create_subscription(
+                cls("geometry_msgs/msg/PoseStamped"), "/object/pose", self.on_pose, sensor
+            ),
         ]
+        self.process_timer = node.create_timer(0.001, self.process_pending)
         self.timer = node.create_timer(
             float(self.params["diagnostics_period"]), self.publish_diagnostics
         )
@@ -167,16 +190,42 @@ class FilterNode:
                 self.configure(Scenario.from_yaml(Path(path).read_text()))
             except (OSError, DbcSlamError) as err:
                 msg = f"cannot load scenario_file {path!r}: {err}"
-                raise SystemExit(msg) from err
+                raise ParameterError(msg) from err
+
+    def _check_params(self) -> None:
+        p = self.params
+        checks = (
+            ("particles", int(p["particles"]) >= 1, ">= 1"),
+            ("catch_up_steps", int(p["catch_up_steps"]) >= 1, ">= 1"),
+            ("diagnostics_period", float(p["diagnostics_period"]) > 0.0, "> 0"),
+            ("max_gap", float(p["max_gap"]) > 0.0, "> 0"),
+            ("reset_after", float(p["reset_after"]) >= 0.0, ">= 0"),
+            ("gating_threshold", float(p["gating_threshold"]) >= 0.0, ">= 0"),
+        )
+        for name, good, valid in checks:
+            if not good:
+                msg = f"parameter {name} = {p[name]!r} is invalid; expected {valid}"
+                raise ParameterError(msg)
 
     # -- configuration -----------------------------------------------------------------------
     def configure(self, scenario: Scenario) -> None:
         """(Re)build the session for a scenario."""
-        config = build_config(scenario.kind, self.params)
+        try:
+            config = build_config(scenario.kind, self.params)
+        except DbcSlamError as err:
+            msg = f"bad filter parameters for scenario '{scenario.kind}': {err}"
+            raise ParameterError(msg) from err
         self.scenario = scenario
         self.session = FilterSession(
-            scenario, config, seed=int(self.params["seed"]), extensions=self.extensions
+            scenario,
+            config,
+            seed=int(self.params["seed"]),
+            extensions=self.extensions,
+            reset_after_s=float(self.params["reset_after"]),
+            max_gap_s=float(self.params["max_gap"]),
         )
+        self.last_estimate = None
+        self._pending = None
         self.log.info(
             f"configured for scenario '{scenario.kind}': contacts {list(scenario.contacts)}, "
             f"friction pairs {list(scenario.friction.pairs)}, {config.particles} particles"
@@ -187,12 +236,15 @@ class FilterNode:
             return
         try:
             scenario = Scenario.from_yaml(str(msg.data))
-        except DbcSlamError as err:
+        except (DbcSlamError, ValueError, TypeError, KeyError) as err:
             self._reject("bad_scenario", f"ignoring /scenario: {err}")
             return
         if self.scenario is not None and scenario == self.scenario:
             return
-        self.configure(scenario)
+        try:
+            self.configure(scenario)
+        except ParameterError as err:
+            self._reject("bad_scenario", f"cannot configure for /scenario: {err}")
 
     # -- inputs ------------------------------------------------------------------------------
     def _reject(self, reason: str, text: str) -> None:
@@ -219,35 +271,80 @@ class FilterNode:
             self._reject(err.reason, f"rejected /joint_states: {err}")
 
     def on_pose(self, msg: Any) -> None:
+        """Validate and queue a pose (depth one: a newer pose drops an unprocessed one)."""
         received = time.monotonic()
         self.received += 1
+        self._rate_window.append(received)
         if self.session is None or self.scenario is None:
             self.rejected_before_scenario += 1
             self.log.warning("no /scenario yet: dropping pose", throttle_duration_sec=5.0)
             return
         try:
             reading = pose_from_msg(msg)
-            if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
-                self._reject("outlier", "rejected /object/pose: outside the gating threshold")
-                return
-            results = self.session.add_pose(reading)
         except InputRejected as err:
-            if err.reason != "stamp_order" or self.session.resets == 0:
-                self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
+            self._reject(err.reason, f"rejected /object/pose: {err}")
             return
-        except (DbcSlamError, ValueError) as err:
-            self._reject("filter_error", f"filter step failed, pose dropped: {err}")
+        if self._pending is not None:
+            back_ns = self._pending[0].stamp_ns - reading.stamp_ns
+            if 0 < back_ns <= self.session.reset_after_ns:
+                # Older than the queued one: a reordered or backwards stamp, not backlog.
+                self._reject("stamp_order", "rejected /object/pose: stamp went backwards")
+                return
+            self.session.reject("backlog")
+            self.backlog_dropped += 1
+            self._dropped_since_step = True
+        self._pending = (reading, received)
+
+    def process_pending(self) -> None:
+        """Run the filter on the queued pose (timer callback, after the inputs were taken)."""
+        if self._pending is None or self.session is None:
             return
+        reading, received = self._pending
+        self._pending = None
+        catch_up = int(self.params["catch_up_steps"]) if self._dropped_since_step else None
+        self._dropped_since_step = False
+        session = self.session
+        if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
+            self._outliers_in_row += 1
+            self._reject("outlier", "rejected /object/pose: outside the gating threshold")
+            if self._outliers_in_row >= MAX_CONSECUTIVE_OUTLIERS:
+                self.log.warning(
+                    f"{self._outliers_in_row} poses in a row outside the gate: "
+                    "re-initialising the filter"
+                )
+                self._outliers_in_row = 0
+                session.reset(keep_until_ns=reading.stamp_ns)
+                self.last_estimate = None
+            return
+        self._outliers_in_row = 0
+        resets = session.resets
+        try:
+            results = session.add_pose(reading, max_steps=catch_up)
+        except InputRejected as err:
+            self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
+            return
+        except Exception as err:
+            self._reject("filter_error", f"filter step failed ({err!r}); filter reset")
+            session.reset(keep_until_ns=reading.stamp_ns)
+            self.last_estimate = None
+            return
+        if session.resets != resets:
+            self.last_estimate = None
+            self.log.info(
+                f"filter reset (jump in time at stamp {reading.stamp_ns * 1e-9:.3f} s)",
+                throttle_duration_sec=1.0,
+            )
         for res in results:
-            self._publish(res)
-            self.latencies.append(time.monotonic() - received)
+            self._publish(res, received)
 
     def _gated(self, x: float, y: float, yaw: float, stamp_ns: int) -> bool:
         gate = float(self.params["gating_threshold"])
         last = self.last_estimate
         if gate <= 0.0 or last is None or self.scenario is None:
             return False
-        dt = max(0.0, (stamp_ns - last.stamp_ns) * 1e-9)
+        dt = (stamp_ns - last.stamp_ns) * 1e-9
+        if not 0.0 <= dt <= 0.5:
+            return False  # time jumps are the session's business
         est = last.estimate
         pred = est.pose[:2] + est.twist[:2] * dt
         noise = self.scenario.noise.position
@@ -257,22 +354,32 @@ class FilterNode:
             d2 = float(r @ np.linalg.solve(cov, r))
         except np.linalg.LinAlgError:
             return False
-        return d2 > gate * gate
+        return bool(np.isfinite(d2)) and d2 > gate * gate
 
     # -- outputs -----------------------------------------------------------------------------
-    def _publish(self, res: StampedEstimate) -> None:
-        assert self.scenario is not None
+    def _publish(self, res: StampedEstimate, received: float) -> None:
+        assert self.scenario is not None and self.session is not None
         try:
             msgs = estimate_messages(res.estimate, self.scenario, res.stamp_ns, self.frame)
         except ValueError as err:
-            self._reject("nan_estimate", f"not publishing: {err}")
+            self.not_published["nan_estimate"] += 1
+            self._reject("nan_estimate", f"not publishing: {err}; filter reset")
+            self.session.reset(keep_until_ns=res.stamp_ns)
+            self.last_estimate = None
             return
         for topic, m in msgs.items():  # pose first (dict order)
             self.pubs[topic].publish(m)
+            if topic == "/dbcslam/pose":
+                self.latencies.append(time.monotonic() - received)
         if int(self.params["marker_particles"]) > 0:
-            self.pubs["/dbcslam/markers"].publish(self._markers(res))
+            try:
+                self.pubs["/dbcslam/markers"].publish(self._markers(res))
+            except (ValueError, DbcSlamError) as err:
+                self.not_published["markers"] += 1
+                self.log.warning(f"markers not published: {err}", throttle_duration_sec=5.0)
         self.published += 1
         self.step_times.append(res.step_time_s)
+        self.model_steps.append(res.model_steps)
         self.last_estimate = res
 
     def _markers(self, res: StampedEstimate) -> Any:
@@ -368,29 +475,46 @@ class FilterNode:
         return cls("visualization_msgs/msg/MarkerArray")(markers=markers)
 
     def diagnostics_values(self) -> dict[str, str]:
-        """Key/values published in /diagnostics (also used by tests and `dbcslam demo`)."""
+        """Key/values published in /diagnostics (also used by tests and `dbcslam demo`).
+
+        Times in ms; rates in Hz over the last diagnostics period; counters since start.
+        ``rejected_<reason>``: inputs dropped per reason (``nan``, ``zero_quaternion``,
+        ``stamp_order``, ``unknown_joint``, ``missing_joint``, ``malformed``, ``no_joints``,
+        ``outlier``, ``backlog``, ``filter_error``, ``nan_estimate``, ``bad_scenario``).
+        """
+        now = time.monotonic()
+        period = float(self.params["diagnostics_period"])
+        while self._rate_window and self._rate_window[0] < now - period:
+            self._rate_window.popleft()
         values: dict[str, str] = {
+            "scenario": self.scenario.kind if self.scenario is not None else "",
             "poses_received": str(self.received),
             "estimates_published": str(self.published),
-            "input_rate_hz": f"{self.received / max(1e-9, time.monotonic() - self._t0):.1f}",
+            "input_rate_hz": f"{len(self._rate_window) / period:.1f}",
             "rejected_before_scenario": str(self.rejected_before_scenario),
+            "backlog_dropped": str(self.backlog_dropped),
         }
         if self.session is not None:
+            values["particles"] = str(self.session.config.particles)
             values["rejected_total"] = str(sum(self.session.rejected.values()))
             for reason, count in sorted(self.session.rejected.items()):
                 values[f"rejected_{reason}"] = str(count)
             values["resets"] = str(self.session.resets)
             values["filter_steps"] = str(self.session.steps)
+            values["skipped_steps"] = str(self.session.skipped_steps)
+            values["gap_steps"] = str(self.session.gap_steps)
         if self.last_estimate is not None:
             est = self.last_estimate.estimate
             values["ess"] = f"{est.ess:.1f}"
             values["live_hypotheses"] = f"{est.live_hypotheses:.2f}"
         if self.step_times:
-            recent = np.asarray(self.step_times[-200:]) * 1e3
-            values["step_time_ms_mean"] = f"{recent.mean():.3f}"
-            values["step_time_ms_max"] = f"{recent.max():.3f}"
+            times = np.asarray(self.step_times) * 1e3
+            steps = np.asarray(self.model_steps, dtype=np.float64)
+            values["step_time_ms_mean"] = f"{times.mean():.3f}"
+            values["step_time_ms_max"] = f"{times.max():.3f}"
+            values["model_step_time_ms_mean"] = f"{(times / steps).mean():.3f}"
         if self.latencies:
-            lat = np.asarray(self.latencies[-200:]) * 1e3
+            lat = np.asarray(self.latencies) * 1e3
             values["latency_ms_mean"] = f"{lat.mean():.3f}"
             values["latency_ms_max"] = f"{lat.max():.3f}"
         return values
@@ -426,18 +550,22 @@ def _reliable() -> Any:
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Entry point of the filter node (Jazzy node shape)."""
+    """Entry point of the filter node (Jazzy node shape); exit 2 on bad parameters."""
     rt.init(args=list(args) if args is not None else sys.argv)
     node = rt.Node("dbcslam_filter")
+    code = 0
     try:
         FilterNode(node)
         rt.spin(node)
     except (KeyboardInterrupt, rt.ExternalShutdownException):
         pass
+    except ParameterError as err:
+        node.get_logger().error(f"dbcslam_filter: {err}")
+        code = 2
     finally:
         node.destroy_node()
         rt.try_shutdown()
-    return 0
+    return code
 
 
 if __name__ == "__main__":

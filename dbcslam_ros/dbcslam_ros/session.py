@@ -14,7 +14,12 @@ observation into filter steps. Rules (documented in the README):
 * Pose stamps that are not later than the previous one by at least half a model step are
   rejected (reason `stamp_order`); a jump back in time of more than `reset_after_s` (a bag
   played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
-  predict-only steps first (dropped observations).
+  predict-only steps first (dropped observations); a gap longer than `max_gap_s` (a stalled
+  sensor) re-initialises the filter at the new pose instead (counted in `resets`).
+* Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
+  model steps for a gap of n > m steps, the last m of the gap; the state is held over the
+  skipped n - m steps (counted in `skipped_steps`). The model never runs faster than it
+  computes, so a slow filter lags the data by a bounded amount instead of a growing backlog.
 * Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
   the session counts them per reason and stays usable.
 """
@@ -41,11 +46,13 @@ NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class StampedEstimate:
-    """An estimate with the stamp (ns) of the observation it answers and its compute time."""
+    """An estimate with the stamp (ns) of the observation it answers, its compute time (s)
+    and the number of model steps it took."""
 
     stamp_ns: int
     estimate: Estimate
     step_time_s: float
+    model_steps: int = 1
 
 
 @dataclass
@@ -71,6 +78,12 @@ class _History:
     def clear(self) -> None:
         self.stamps.clear()
         self.values.clear()
+
+    def drop_after(self, t_ns: int) -> None:
+        """Forget readings stamped later than t."""
+        while self.stamps and self.stamps[-1] > t_ns:
+            self.stamps.pop()
+            self.values.pop()
 
     def held(self, t_ns: int) -> tuple[float, ...] | None:
         """Latest value stamped at or before t (zero-order hold)."""
@@ -103,18 +116,23 @@ class FilterSession:
         self,
         scenario: Scenario,
         config: FilterConfig,
+        *,
         seed: int = 0,
         extensions: tuple[ModelExtension, ...] = (),
         reset_after_s: float = 0.5,
+        max_gap_s: float = 1.0,
     ) -> None:
         self.scenario = scenario
         self.config = config
         self.seed = seed
         self.extensions = extensions
         self.reset_after_ns = int(reset_after_s * NS)
+        self.max_gap_ns = int(max_gap_s * NS)
         self.rejected: Counter[str] = Counter()
         self.resets = 0
         self.steps = 0
+        self.skipped_steps = 0
+        self.gap_steps = 0
         self._wrench = _History()
         self._joints = _History()
         self._last_pose_ns: int | None = None
@@ -134,15 +152,22 @@ class FilterSession:
         """Count an input rejected before it reached the session (e.g. failed conversion)."""
         self.rejected[reason] += 1
 
-    def add_pose(self, reading: PoseReading) -> list[StampedEstimate]:
+    def add_pose(
+        self, reading: PoseReading, max_steps: int | None = None
+    ) -> list[StampedEstimate]:
         """Process one pose observation; returns the estimate(s) it produced (0 or 1).
 
-        Raises InputRejected (and counts it) for observations that cannot be used.
+        max_steps: run at most this many model steps for this pose (catch-up, see the module
+        docstring); None runs the whole gap. Raises InputRejected (and counts it) for
+        observations that cannot be used.
         """
         dt_ns = round(self.scenario.dt * NS)
         last = self._last_pose_ns
         if last is not None and reading.stamp_ns < last - self.reset_after_ns:
-            self.reset()
+            self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
+            last = None
+        if last is not None and reading.stamp_ns - last > self.max_gap_ns:
+            self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
             last = None
         if last is not None and reading.stamp_ns - last < dt_ns // 2:
             self.rejected["stamp_order"] += 1
@@ -165,19 +190,27 @@ class FilterSession:
             flt.initialize(q0, std, joints=joints)
             self._last_pose_ns = reading.stamp_ns
             return []
-        n_steps = max(1, round((reading.stamp_ns - last) / dt_ns))
+        n_gap = max(1, round((reading.stamp_ns - last) / dt_ns))
+        n_run = n_gap if max_steps is None else max(1, min(n_gap, int(max_steps)))
         started = time.perf_counter()
         est: Estimate | None = None
-        for k in range(n_steps):
-            t_start = last + k * dt_ns
-            t_end = reading.stamp_ns if k == n_steps - 1 else t_start + dt_ns
+        # Run the LAST n_run steps of the gap; the skipped ones hold the state.
+        first = reading.stamp_ns - n_run * dt_ns if n_run < n_gap else last
+        for k in range(n_run):
+            t_start = first + k * dt_ns
+            t_end = reading.stamp_ns if k == n_run - 1 else t_start + dt_ns
             wrench = self._wrench.held(t_start) or (0.0, 0.0, 0.0)
-            inp = FilterInput(wrench=wrench, joints=self._joints_at(t_end))
-            est = flt.step(obs if k == n_steps - 1 else None, inp)
+            joints_start = self._joints_at(t_start) if (k == 0 and n_run < n_gap) else None
+            inp = FilterInput(
+                wrench=wrench, joints=self._joints_at(t_end), joints_start=joints_start
+            )
+            est = flt.step(obs if k == n_run - 1 else None, inp)
         assert est is not None
         self._last_pose_ns = reading.stamp_ns
-        self.steps += n_steps
-        return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started)]
+        self.steps += n_run
+        self.gap_steps += n_gap - 1
+        self.skipped_steps += n_gap - n_run
+        return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started, n_run)]
 
     # -- introspection --------------------------------------------------------------------
     def particles(self) -> tuple[np.ndarray, np.ndarray]:
@@ -195,11 +228,20 @@ class FilterSession:
         return self._joints.values[-1] if self._joints.values else ()
 
     # -- control --------------------------------------------------------------------------
-    def reset(self) -> None:
-        """Forget all state (new particles from the next pose); counters survive."""
+    def reset(self, keep_until_ns: int | None = None) -> None:
+        """Forget the filter state (new particles from the next pose); counters survive.
+
+        keep_until_ns: keep wrench/joint readings stamped at or before this time (the inputs
+        of the new time line that arrived before the pose that triggered the reset); None
+        forgets them all.
+        """
         self.resets += 1
-        self._wrench.clear()
-        self._joints.clear()
+        if keep_until_ns is None:
+            self._wrench.clear()
+            self._joints.clear()
+        else:
+            self._wrench.drop_after(keep_until_ns)
+            self._joints.drop_after(keep_until_ns)
         self._last_pose_ns = None
         self._new_filter()
 

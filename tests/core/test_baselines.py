@@ -130,3 +130,20 @@ def test_all_particles_failing_raises(edge: Trajectory) -> None:
     filt.model.solver = _NoBatchLemke(always_fail=True)
     with pytest.raises(SolverError, match="every particle failed"):
         run(filt, edge, 3)
+
+
+def test_active_set_lemke_matches_full_lemke(edge: Trajectory) -> None:
+    outs = [
+        run(
+            BlackBoxNCPFilter(
+                edge.scenario,
+                NCPFilterConfig(particles=16, solver="lemke", active_set=act),
+                np.random.default_rng(4),
+            ),
+            edge,
+            40,
+        )
+        for act in (False, True)
+    ]
+    np.testing.assert_allclose(outs[0].pose, outs[1].pose, atol=1e-9)
+    np.testing.assert_allclose(outs[0].modes, outs[1].modes, atol=1e-9)

@@ -103,3 +103,36 @@ def test_joint_smoother_reduces_noise_and_tracks_ramp() -> None:
     assert np.sqrt(np.mean(err**2)) < 0.5 * noise
     passthrough = JointSmoother(2, dt, 0.0)
     np.testing.assert_allclose(passthrough.update([1.0, 2.0]), [1.0, 2.0])
+
+
+def test_full_covariance_proposal_matches_diagonal_case_and_conditioning() -> None:
+    from scipy.stats import multivariate_normal
+
+    from dbcslam_core.observation import gaussian_log_density, gaussian_proposal
+
+    dt = 0.01
+    lin = PoseObservationModel(3, 0.002, 0.02).linearize(PoseObservation(0.001, -0.002, 0.03))
+    q = np.array([0.0, 0.0, 0.01])
+    vh = np.array([0.1, -0.2, 1.0])
+    sv = np.array([0.3, 0.2, 2.0])
+    sq = np.array([1e-4, 1e-4, 1e-3])
+    diag = proposal_terms(q, vh, dt, sv, lin, sigma_q=sq)
+    full = gaussian_proposal(q, vh, np.diag(sv**2), dt, lin, sigma_q=sq)
+    assert float(full.log_pred) == pytest.approx(float(diag.log_pred))
+    np.testing.assert_allclose(full.v_mean - vh, diag.v_mean)
+    np.testing.assert_allclose(np.sqrt(np.diag(full.v_cov)), diag.v_std)
+    # a correlated covariance: compare with joint-Gaussian conditioning of (v', o)
+    a = np.array([[1.0, 0.3, 0.0], [0.3, 0.5, 0.2], [0.0, 0.2, 2.0]])
+    cov = a @ a.T * 0.01
+    full = gaussian_proposal(q, vh, cov, dt, lin, sigma_q=sq)
+    s_o = dt**2 * cov + np.diag(sq**2 + lin.var)
+    y = lin.residual(q + dt * vh)
+    c = dt * cov
+    np.testing.assert_allclose(full.v_mean, vh + c @ np.linalg.solve(s_o, y))
+    np.testing.assert_allclose(full.v_cov, cov - c @ np.linalg.solve(s_o, c.T), atol=1e-15)
+    expected = multivariate_normal(np.zeros(3), s_o).logpdf(y)
+    assert float(full.log_pred) == pytest.approx(float(expected))
+    x = np.array([0.01, -0.02, 0.05])
+    assert float(gaussian_log_density(x, cov)) == pytest.approx(
+        float(multivariate_normal(np.zeros(3), cov).logpdf(x))
+    )

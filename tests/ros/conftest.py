@@ -61,37 +61,56 @@ class NodeProcess:
             return self.proc.wait(5)
 
 
-@pytest.fixture
-def node_process(tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
-    """Factory ``start(module, *args, env=None) -> NodeProcess`` running
-    ``python -m module args`` on the dds backend; all are stopped at teardown."""
-    started: list[NodeProcess] = []
+class ProcessGroup:
+    """Starts ``python -m module args`` processes on the dds backend and stops them by PID."""
 
-    def start(module: str, *args: str, env: dict[str, str] | None = None) -> NodeProcess:
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.started: list[NodeProcess] = []
+
+    def start(self, module: str, *args: str, env: dict[str, str] | None = None) -> NodeProcess:
         full_env = dict(os.environ)
         full_env["DBCSLAM_RUNTIME"] = "dds"
         full_env["PYTHONUNBUFFERED"] = "1"
         full_env.update(env or {})
-        idx = len(started)
-        out = tmp_path / f"proc{idx}.out"
-        err = tmp_path / f"proc{idx}.err"
+        idx = len(self.started)
+        out = self.log_dir / f"proc{idx}.out"
+        err = self.log_dir / f"proc{idx}.err"
         with out.open("wb") as fo, err.open("wb") as fe:
             proc = subprocess.Popen(
                 [sys.executable, "-m", module, *args], stdout=fo, stderr=fe, env=full_env
             )
         np = NodeProcess(proc, out, err)
-        started.append(np)
+        self.started.append(np)
         return np
 
-    yield start
-    for np in started:
-        if np.proc.poll() is None:
-            try:
-                os.kill(np.pid, signal.SIGTERM)
-                np.proc.wait(5)
-            except (subprocess.TimeoutExpired, ProcessLookupError):
-                os.kill(np.pid, signal.SIGKILL)
-                np.proc.wait(5)
+    def stop_all(self) -> None:
+        """SIGTERM every process still running (SIGKILL after 5 s), by PID."""
+        for np in self.started:
+            if np.proc.poll() is None:
+                try:
+                    os.kill(np.pid, signal.SIGTERM)
+                    np.proc.wait(5)
+                except (subprocess.TimeoutExpired, ProcessLookupError):
+                    os.kill(np.pid, signal.SIGKILL)
+                    np.proc.wait(5)
+
+
+@pytest.fixture
+def node_process(tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
+    """Factory ``start(module, *args, env=None) -> NodeProcess`` running
+    ``python -m module args`` on the dds backend; all are stopped at teardown."""
+    group = ProcessGroup(tmp_path)
+    yield group.start
+    group.stop_all()
+
+
+@pytest.fixture(scope="module")
+def module_processes(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ProcessGroup]:
+    """A module-scoped :class:`ProcessGroup` (for runs shared by several tests)."""
+    group = ProcessGroup(tmp_path_factory.mktemp("procs"))
+    yield group
+    group.stop_all()
 
 
 @pytest.fixture

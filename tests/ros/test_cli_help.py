@@ -112,3 +112,15 @@ def test_console_script_help_runs_in_a_fresh_process() -> None:
     )
     assert proc.returncode == 0
     assert "record" in proc.stdout
+
+
+@pytest.mark.parametrize("name", sorted(discover_commands()))
+def test_every_registered_command_has_help_with_examples(
+    name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([name, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert f"dbcslam {name}" in out
+    assert "examples:" in out

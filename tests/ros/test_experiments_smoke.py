@@ -51,6 +51,8 @@ def test_figures_written(out_dir: Path) -> None:
         "gripper_yaw.png",
         "gripper_friction.png",
         "gripper_hypotheses.png",
+        "edge_overview.png",
+        "gripper_overview.png",
     ):
         assert name in pngs
         assert (out_dir / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

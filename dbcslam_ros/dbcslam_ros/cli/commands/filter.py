@@ -35,24 +35,26 @@ _EXAMPLES = """\
 def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="FILE", help="ROS 2 parameters YAML file")
     parser.add_argument(
-        "ros_args", nargs=argparse.REMAINDER, help="--ros-args ... passed to the node"
+        "--ros-args",
+        dest="ros_args",
+        nargs=argparse.REMAINDER,
+        default=[],
+        metavar="ARG",
+        help="ROS arguments passed to the node (-p NAME:=VALUE ...); must come last",
     )
 
 
 def _run(args: argparse.Namespace) -> int:
     from dbcslam_ros.filter_node import main
 
-    argv = ["dbcslam_filter"]
-    ros_args = list(args.ros_args)
+    argv = ["dbcslam_filter", "--ros-args"]
     if args.params:
         path = Path(args.params)
         if not path.is_file():
             msg = f"{path}: no such parameters file"
             raise UsageError(msg)
-        if "--ros-args" not in ros_args:
-            ros_args = ["--ros-args", *ros_args]
-        ros_args += ["--params-file", str(path)]
-    return main(argv + ros_args)
+        argv += ["--params-file", str(path)]
+    return main(argv + list(args.ros_args))
 
 
 COMMAND = Command(
