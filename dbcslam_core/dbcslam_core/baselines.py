@@ -141,9 +141,12 @@ class NCPFilterConfig:
 
     default_noise: dict[str, tuple[float, ...]] = field(
         default_factory=lambda: {
-            "edge": (0.03, 0.03),
-            "gripper": (0.02, 0.02, 0.5),
-            "push": (0.01, 0.01, 0.2),
+            # tuned for this filter (best position RMSE of a small grid on seeds 0-1, 500
+            # particles): a bootstrap filter without Rao-Blackwellisation degenerates with
+            # the much tighter noise DBC-SLAM uses (gripper: 3.5 mm vs 1.0 mm RMSE).
+            "edge": (0.01, 0.01),
+            "gripper": (0.03, 0.03, 1.0),
+            "push": (0.01, 0.01, 0.3),
         }
     )
 

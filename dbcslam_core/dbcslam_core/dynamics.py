@@ -12,6 +12,17 @@ Kinematics are evaluated at (q, env); obstacle velocities are (env_next - env) /
 Generalised force F = gravity (edge scenario only: -m g along y; the other scenarios are a
 horizontal plane) + input gain * u + extension forces. The input wrench u = (fx, fy[, tau])
 acts at the centre of mass, world frame (N, N m). Units SI.
+
+Support friction (horizontal scenarios; DESIGN.md "Support friction"): Coulomb friction of
+support points p_i (weights w_i, normal force w_i m g) against the plane, implicit and
+linearised: K(q, v_lin) = mu_s m g sum_i w_i J_i^T J_i / max(|J_i v_lin|, v_eps) and
+
+    (M + dt K) v' = M v + dt F + Jn^T ln + Jt^T lt,
+
+i.e. M is replaced by the effective mass M + dt K everywhere above (the LCP stays linear).
+`step` re-linearises at the new v' (iteratively reweighted: a majorise-minimise iteration
+of the exact implicit Coulomb step) until v' stops changing; `support_iterations=1` keeps
+the single linearisation at the start velocity (the filter's linear model).
 """
 
 from __future__ import annotations
@@ -32,8 +43,9 @@ from .extensions import (
     compose_mu_field,
     extra_force,
     support_friction_mu,
+    support_rim_fraction,
 )
-from .geometry import ContactKinematics, contact_kinematics
+from .geometry import ContactKinematics, contact_kinematics, rotate, support_points
 from .lcp import LCPSolver, LemkeSolver, PGSSolver, lcp_residuals
 from .scenario import Scenario
 
@@ -110,6 +122,14 @@ class PlanarModel:
     when most contacts are open); default False = always `solver.solve_batch` on the full
     LCP. With mu >~ 1 (Painleve-type non-uniqueness) the two may pick different valid
     solutions; the active-set one has no spurious impulses.
+
+    Support friction (see module docstring) is on when the support coefficient is given
+    (`surface_mu`): a ``support_friction`` extension, the scenario's ``surface.pair`` (from
+    ``mu_pair``), an explicit ``mu_surface``, or ``surface.mu`` > 0. support_iterations:
+    maximum number of re-linearisations per step (1 = linearised at the start velocity);
+    support_tol (m/s): stop when v' changes by less. `support_points` / `support_weights`
+    hold the pressure distribution (``surface.pressure``, or the ``support_pressure``
+    extension's rim_fraction blend of uniform and rim).
     """
 
     def __init__(
@@ -119,6 +139,8 @@ class PlanarModel:
         solver: LCPSolver | None = None,
         *,
         active_set: bool = False,
+        support_iterations: int = 100,
+        support_tol: float = 1e-9,
     ) -> None:
         self.scenario = scenario
         self.active_set = active_set
@@ -129,10 +151,29 @@ class PlanarModel:
         diag = [body.mass, body.mass] + ([body.inertia] if body.shape == "polygon" else [])
         self.mass_diag: F64 = k * np.asarray(diag, dtype=np.float64)
         self.input_gain: float = compose_input_gain(self.extensions)
-        self.support_mu: float = support_friction_mu(self.extensions)
+        self.support_mu: float | None = support_friction_mu(self.extensions)
         self.nq: int = scenario.nq
         self.nc: int = scenario.n_contacts
         self.pairs: NDArray[np.int64] = np.asarray(scenario.contact_pairs, dtype=np.int64)
+        if support_iterations < 1 or not support_tol > 0.0:
+            msg = (
+                f"support_iterations must be >= 1 and support_tol > 0, got "
+                f"{support_iterations}, {support_tol}"
+            )
+            raise ModelError(msg)
+        self.support_iterations = int(support_iterations)
+        self.support_tol = float(support_tol)
+        surf = scenario.surface
+        self.surface_pair: int | None = (
+            None if surf.pair is None else scenario.friction.pair_index(surf.pair)
+        )
+        self.velocity_eps: float = surf.velocity_eps
+        verts = body.vertices if body.shape == "polygon" else ()
+        pts, wts = support_points(
+            verts, surf.pressure_model, rim_fraction=support_rim_fraction(self.extensions)
+        )
+        self.support_points: F64 = pts
+        self.support_weights: F64 = wts
 
     # ------------------------------------------------------------------------ ingredients
     @property
@@ -185,13 +226,134 @@ class PlanarModel:
             raise ModelError(msg)
         return np.asarray(np.broadcast_to(m, kin.phi.shape), dtype=np.float64)
 
+    # ------------------------------------------------------------------ support friction
+    def surface_mu(
+        self, mu_pair: ArrayLike | None = None, mu_surface: ArrayLike | None = None
+    ) -> F64 | None:
+        """Support friction coefficient [...] (None = no support friction).
+
+        Precedence: a ``support_friction`` extension (the model's own value), then an
+        explicit `mu_surface`, then ``mu_pair[..., surface pair]`` when the scenario names a
+        support pair, then the known ``surface.mu`` (None when it is 0). A scenario with a
+        support pair and neither mu_pair nor mu_surface given is an error.
+        """
+        if self.support_mu is not None:
+            return np.asarray(self.support_mu, dtype=np.float64)
+        if mu_surface is not None:
+            m = np.asarray(mu_surface, dtype=np.float64)
+        elif self.surface_pair is not None:
+            if mu_pair is None:
+                msg = (
+                    f"scenario has the support friction pair {self.scenario.surface.pair!r}: "
+                    "give mu_pair (per pair, including it) or mu_surface"
+                )
+                raise ModelError(msg)
+            m = np.asarray(mu_pair, dtype=np.float64)[..., self.surface_pair]
+        elif self.scenario.surface.mu > 0.0:
+            m = np.asarray(self.scenario.surface.mu, dtype=np.float64)
+        else:
+            return None
+        if np.any(~np.isfinite(m)) or np.any(m < 0.0):
+            msg = f"support friction coefficient must be finite and >= 0, got {m}"
+            raise ModelError(msg)
+        return m
+
+    def support_matrix(
+        self,
+        q: ArrayLike,
+        v: ArrayLike,
+        mu_surface: ArrayLike = 1.0,
+        *,
+        velocity_eps: float | None = None,
+    ) -> F64:
+        """Linearised support friction K[..., nv, nv] (N s/m; generalised force -K v').
+
+        K = mu_s m g sum_i w_i J_i^T J_i / max(|J_i v|, velocity_eps) with J_i the 2 x nv
+        Jacobian of support point i (body frame `support_points`, weight `support_weights`),
+        evaluated at q[..., nq], v[..., nv] (the linearisation velocity); mu_surface [...]
+        broadcasts over the leading axes; K is linear in it (compute K at mu 1 and scale).
+        Symmetric positive semi-definite. velocity_eps (m/s) defaults to the scenario's.
+        """
+        qa = np.asarray(q, dtype=np.float64)
+        va = np.asarray(v, dtype=np.float64)
+        mu = np.asarray(mu_surface, dtype=np.float64)
+        eps = self.velocity_eps if velocity_eps is None else float(velocity_eps)
+        if not eps > 0.0:
+            msg = f"velocity_eps must be > 0 m/s, got {eps}"
+            raise ModelError(msg)
+        load = self.mass_diag[0] * self.scenario.gravity
+        w = self.support_weights
+        nv = self.nq
+        if nv == 2:
+            speed = np.linalg.norm(va, axis=-1)
+            c = load * float(np.sum(w)) / np.maximum(speed, eps)
+            k = c[..., None, None] * np.eye(2)
+            return np.asarray(mu[..., None, None] * k, dtype=np.float64)
+        r = rotate(qa[..., 2, None], self.support_points)  # (..., N, 2) world offsets
+        vi = va[..., None, :2] + va[..., None, 2:3] * np.stack([-r[..., 1], r[..., 0]], -1)
+        c = load * w / np.maximum(np.linalg.norm(vi, axis=-1), eps)  # (..., N)
+        s0 = np.sum(c, axis=-1)
+        sx = np.sum(c * r[..., 0], axis=-1)
+        sy = np.sum(c * r[..., 1], axis=-1)
+        srr = np.sum(c * np.sum(r * r, axis=-1), axis=-1)
+        zero = np.zeros_like(s0)
+        k = np.stack(
+            [
+                np.stack([s0, zero, -sy], -1),
+                np.stack([zero, s0, sx], -1),
+                np.stack([-sy, sx, srr], -1),
+            ],
+            -2,
+        )
+        return np.asarray(mu[..., None, None] * k, dtype=np.float64)
+
+    def effective_mass(
+        self,
+        q: ArrayLike,
+        v: ArrayLike,
+        mu_surface: ArrayLike = 1.0,
+        *,
+        velocity_eps: float | None = None,
+    ) -> F64:
+        """M + dt K(q, v, mu_surface) [..., nv, nv] (kg, kg m^2): see `support_matrix`.
+
+        The step's velocity update is (M + dt K) v' = M v + dt F + J^T impulses.
+        """
+        k = self.support_matrix(q, v, mu_surface, velocity_eps=velocity_eps)
+        return np.asarray(self.mass_matrix + self.scenario.dt * k, dtype=np.float64)
+
+    def free_velocity(
+        self,
+        q: ArrayLike,
+        v: ArrayLike,
+        u: ArrayLike,
+        m_eff: ArrayLike | None = None,
+    ) -> F64:
+        """v_free[..., nv] = m_eff^-1 (M v + dt F(q, v, u)) (m/s): velocity without impulses.
+
+        m_eff: effective mass [..., nv, nv] (`effective_mass`); None = M (no support friction).
+        """
+        va = np.asarray(v, dtype=np.float64)
+        f = self.generalized_force(q, va, u)
+        if m_eff is None:
+            return np.asarray(va + self.scenario.dt * f / self.mass_diag, dtype=np.float64)
+        rhs = self.mass_diag * va + self.scenario.dt * f
+        me = np.asarray(m_eff, dtype=np.float64)
+        lead = np.broadcast_shapes(me.shape[:-2], rhs.shape[:-1])
+        me = np.broadcast_to(me, (*lead, self.nq, self.nq))
+        rhs = np.broadcast_to(rhs, (*lead, self.nq))
+        return np.asarray(np.linalg.solve(me, rhs[..., None])[..., 0], dtype=np.float64)
+
     def _prepare(
         self,
         state: State,
         u: ArrayLike,
         env: ArrayLike | None,
         env_next: ArrayLike | None,
-    ) -> tuple[F64, F64, ContactKinematics, F64]:
+        *,
+        mus: F64 | None,
+        v_lin: F64 | None,
+    ) -> tuple[F64, F64, ContactKinematics, F64, F64 | None]:
         dt = self.scenario.dt
         q = np.asarray(state.q, dtype=np.float64)
         v = np.asarray(state.v, dtype=np.float64)
@@ -205,18 +367,13 @@ class PlanarModel:
         e0 = np.zeros(n_env) if env is None else np.asarray(env, dtype=np.float64)
         e1 = e0 if env_next is None else np.asarray(env_next, dtype=np.float64)
         kin = contact_kinematics(self.scenario, q, e0, (e1 - e0) / dt)
-        v_free = v + dt * self.generalized_force(q, v, u) / self.mass_diag
-        if self.support_mu > 0.0:
-            v_free = self._support_friction(v_free)
-        return q, v, kin, v_free
-
-    def _support_friction(self, v: F64) -> F64:
-        speed = np.linalg.norm(v[..., 0:2], axis=-1, keepdims=True)
-        dv = self.support_mu * self.scenario.gravity * self.scenario.dt
-        factor = np.where(speed > dv, 1.0 - dv / np.maximum(speed, 1e-300), 0.0)
-        out = v.copy()
-        out[..., 0:2] = v[..., 0:2] * factor
-        return out
+        m_eff = None
+        if mus is not None:
+            m_eff = self.effective_mass(q, v if v_lin is None else v_lin, mus)
+            lead = np.broadcast_shapes(m_eff.shape[:-2], kin.phi.shape[:-1])
+            m_eff = np.broadcast_to(m_eff, (*lead, self.nq, self.nq))
+        v_free = self.free_velocity(q, v, u, m_eff)
+        return q, v, kin, v_free, m_eff
 
     def lcp(
         self,
@@ -227,12 +384,17 @@ class PlanarModel:
         *,
         mu: MuSpec | None = None,
         mu_pair: ArrayLike | None = None,
+        mu_surface: ArrayLike | None = None,
+        v_lin: ArrayLike | None = None,
     ) -> tuple[F64, F64]:
         """The Stewart-Trinkle LCP (A[..., 4C, 4C], b[..., 4C]) of one step, w = A z + b.
 
-        Unknown order per contact block: (ln, lt+, lt-, s).
+        Unknown order per contact block: (ln, lt+, lt-, s). With support friction the mass
+        is the effective mass linearised at v_lin (default: the state's velocity).
         """
-        a, b, *_ = self._lcp(state, u, env, env_next, mu=mu, mu_pair=mu_pair)
+        mus = self.surface_mu(mu_pair, mu_surface)
+        vl = None if v_lin is None else np.asarray(v_lin, dtype=np.float64)
+        a, b, *_ = self._lcp(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=vl)
         return a, b
 
     def _lcp(
@@ -244,17 +406,25 @@ class PlanarModel:
         *,
         mu: MuSpec | None,
         mu_pair: ArrayLike | None,
-    ) -> tuple[F64, F64, ContactKinematics, F64, F64]:
-        _, _, kin, v_free = self._prepare(state, u, env, env_next)
+        mus: F64 | None,
+        v_lin: F64 | None,
+    ) -> tuple[F64, F64, ContactKinematics, F64, F64, F64 | None]:
+        _, _, kin, v_free, m_eff = self._prepare(state, u, env, env_next, mus=mus, v_lin=v_lin)
         muc = self.friction(kin, mu, mu_pair)
-        minv = 1.0 / self.mass_diag
         jn, jt = kin.Jn, kin.Jt
-        wnn = np.einsum("...ik,k,...jk->...ij", jn, minv, jn)
-        wnt = np.einsum("...ik,k,...jk->...ij", jn, minv, jt)
-        wtt = np.einsum("...ik,k,...jk->...ij", jt, minv, jt)
+        c = self.nc
+        if m_eff is None:
+            minv = 1.0 / self.mass_diag
+            wnn = np.einsum("...ik,k,...jk->...ij", jn, minv, jn)
+            wnt = np.einsum("...ik,k,...jk->...ij", jn, minv, jt)
+            wtt = np.einsum("...ik,k,...jk->...ij", jt, minv, jt)
+        else:
+            jac = np.concatenate([jn, jt], axis=-2)  # (..., 2C, nv)
+            mj = np.linalg.solve(m_eff, np.swapaxes(jac, -1, -2))  # M_eff^-1 J^T
+            d = jac @ mj
+            wnn, wnt, wtt = d[..., :c, :c], d[..., :c, c:], d[..., c:, c:]
         wtn = np.swapaxes(wnt, -1, -2)
         lead = kin.phi.shape[:-1]
-        c = self.nc
         a = np.zeros((*lead, c, 4, c, 4))
         a[..., :, 0, :, 0] = wnn
         a[..., :, 0, :, 1] = wnt
@@ -277,7 +447,14 @@ class PlanarModel:
         b[..., 0] = kin.phi / self.scenario.dt + vn_free - kin.vn_env
         b[..., 1] = vt_free
         b[..., 2] = -vt_free
-        return a.reshape(*lead, 4 * c, 4 * c), b.reshape(*lead, 4 * c), kin, v_free, muc
+        return (
+            a.reshape(*lead, 4 * c, 4 * c),
+            b.reshape(*lead, 4 * c),
+            kin,
+            v_free,
+            muc,
+            m_eff,
+        )
 
     def _solve_active(self, a: F64, b: F64) -> F64:
         """Exact contact-LCP solve on the contacts that can carry an impulse.
@@ -319,20 +496,68 @@ class PlanarModel:
         *,
         mu: MuSpec | None = None,
         mu_pair: ArrayLike | None = None,
+        mu_surface: ArrayLike | None = None,
     ) -> StepResult:
         """Advance one time step dt (broadcasts over leading axes of q, v, u, env).
 
         env, env_next: joint positions at the start / end of the step ([..., E], m);
         friction by `mu` (scalar, per contact, or callable of the tangent coordinate s) or
-        `mu_pair` (per friction pair). Raises SolverError if the LCP solver fails.
+        `mu_pair` (per friction pair, including the support pair if the scenario has one);
+        mu_surface [...]: support friction coefficient (see `surface_mu`). With support
+        friction the step is re-linearised at its own result up to `support_iterations`
+        times (until v' changes by < `support_tol`). Raises SolverError if the LCP solver
+        fails.
         """
-        a, b, kin, v_free, muc = self._lcp(state, u, env, env_next, mu=mu, mu_pair=mu_pair)
+        mus = self.surface_mu(mu_pair, mu_surface)
+        r = self._step_once(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=None)
+        if mus is None:
+            return r
+        # Fixed point v' = g(v_lin) of the re-linearisation, Anderson(1)-accelerated (secant
+        # on the residual g(x) - x, per batch element); plain iteration when it stalls.
+        x0 = np.asarray(state.v, dtype=np.float64)
+        g0 = r.v
+        x1 = g0
+        res0 = g0 - np.broadcast_to(x0, g0.shape)
+        for _ in range(self.support_iterations - 1):
+            r = self._step_once(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=x1)
+            g1 = r.v
+            res1 = g1 - x1
+            if float(np.max(np.abs(res1), initial=0.0)) <= self.support_tol:
+                break
+            dr = res1 - res0
+            den = np.sum(dr * dr, axis=-1, keepdims=True)
+            gamma = np.where(
+                den > 0.0, np.sum(res1 * dr, axis=-1, keepdims=True) / np.maximum(den, 1e-300), 0
+            )
+            gamma = np.clip(gamma, -10.0, 10.0)
+            x2 = g1 - gamma * (g1 - g0)
+            g0, res0, x1 = g1, res1, x2
+        return r
+
+    def _step_once(
+        self,
+        state: State,
+        u: ArrayLike,
+        env: ArrayLike | None,
+        env_next: ArrayLike | None,
+        *,
+        mu: MuSpec | None,
+        mu_pair: ArrayLike | None,
+        mus: F64 | None,
+        v_lin: F64 | None,
+    ) -> StepResult:
+        a, b, kin, v_free, muc, m_eff = self._lcp(
+            state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=v_lin
+        )
         lead = kin.phi.shape[:-1]
         c = self.nc
         minv = 1.0 / self.mass_diag
         if isinstance(self.solver, PGSSolver):
             jac = np.stack([kin.Jn, kin.Jt], axis=-2).reshape(*lead, 2 * c, self.nq)
-            w = np.einsum("...ik,k,...jk->...ij", jac, minv, jac)
+            if m_eff is None:
+                w = np.einsum("...ik,k,...jk->...ij", jac, minv, jac)
+            else:
+                w = jac @ np.linalg.solve(m_eff, np.swapaxes(jac, -1, -2))
             cvec = np.stack(
                 [b.reshape(*lead, c, 4)[..., 0], b.reshape(*lead, c, 4)[..., 1]], -1
             ).reshape(*lead, 2 * c)
@@ -356,9 +581,8 @@ class PlanarModel:
             ln = z[..., 0]
             lt = z[..., 1] - z[..., 2]
             slide = z[..., 3]
-        dv = (
-            np.einsum("...ck,...c->...k", kin.Jn, ln) + np.einsum("...ck,...c->...k", kin.Jt, lt)
-        ) * minv
+        gen = np.einsum("...ck,...c->...k", kin.Jn, ln) + np.einsum("...ck,...c->...k", kin.Jt, lt)
+        dv = gen * minv if m_eff is None else np.linalg.solve(m_eff, gen[..., None])[..., 0]
         v_next = v_free + dv
         q_next = np.asarray(state.q, dtype=np.float64) + self.scenario.dt * v_next
         vt = np.einsum("...ck,...k->...c", kin.Jt, v_next) - kin.vt_env

@@ -416,8 +416,10 @@ def run_black_box(
 ) -> RunTrace:
     """The black-box NCP particle filter over `tr` (solver ``lemke`` or ``pgs``).
 
-    Unless `config` is given it uses the same process noise as the DBC-SLAM preset;
-    active_set: Lemke over the contacts that can close only (method ``blackbox_lemke_as``).
+    Unless `config` is given it uses its own tuned velocity process noise
+    (``NCPFilterConfig.default_noise``) and the position noise, initial velocity spread and
+    warm-up of the DBC-SLAM preset; active_set: Lemke over the contacts that can close only
+    (method ``blackbox_lemke_as``).
     """
     if config is None:
         base = FilterConfig.preset(tr.scenario.kind)
@@ -425,7 +427,6 @@ def run_black_box(
         config = NCPFilterConfig(
             particles=particles,
             solver=solver,
-            process_noise=tuple(base.process_noise[:nq]),
             position_noise=tuple(base.position_noise[:nq]),
             init_velocity_std=base.init_velocity_std,
             warmup_steps=base.warmup_steps,

@@ -11,9 +11,15 @@ Effect vocabulary (interface contract, `dbcslam discrepancy`), parameters in SI 
 * ``sensor_delay``: ``seconds`` - observations lag the true state (applied by the consumer:
   the synthetic generator / the filter; exposed as `ModelExtension.delay`)
 * ``sensor_bias``: ``x``, ``y`` (m), ``yaw`` (rad) - added to the observed pose
-* ``support_friction``: ``mu`` - Coulomb friction between the body and its supporting plane
-  (horizontal scenarios): each step the translational speed is reduced by at most
-  mu g dt, never reversing it (a simple explicit model; rotation is not damped)
+* ``support_friction``: ``mu`` - Coulomb friction between the body and its supporting plane:
+  the support-point model of `PlanarModel.support_matrix` (normal load m g spread over the
+  pressure distribution's points, implicit regularised Coulomb, translation and rotation)
+  with this coefficient, replacing the scenario's own support coefficient (``surface.pair`` /
+  ``surface.mu``). On the edge scenario (vertical plane) it is a modelling device: a
+  Coulomb drag of m g mu on the point mass.
+* ``support_pressure``: ``rim_fraction`` in [0, 1] - the support pressure distribution is
+  (1 - rim_fraction) x uniform over the outline area + rim_fraction x along the outline
+  (replaces ``surface.pressure``; `geometry.support_points`); push-specific
 * ``none`` - no effect
 
 `PlanarModel` takes a tuple of extensions; the empty tuple is the nominal model. Several
@@ -40,6 +46,7 @@ __all__ = [
     "compose_observation",
     "extra_force",
     "support_friction_mu",
+    "support_rim_fraction",
 ]
 
 F64 = NDArray[np.float64]
@@ -53,6 +60,7 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "sensor_delay": ("seconds",),
     "sensor_bias": ("x", "y", "yaw"),
     "support_friction": ("mu",),
+    "support_pressure": ("rim_fraction",),
     "none": (),
 }
 """Effect name -> parameter names (all required, floats)."""
@@ -84,6 +92,9 @@ class ModelExtension:
             raise ModelError(msg)
         if self.effect == "friction_patch" and not (p["x_min"] < p["x_max"] and p["mu"] >= 0):
             msg = f"effect 'friction_patch' needs x_min < x_max and mu >= 0, got {p}"
+            raise ModelError(msg)
+        if self.effect == "support_pressure" and not 0.0 <= p["rim_fraction"] <= 1.0:
+            msg = f"effect 'support_pressure': rim_fraction must lie in [0, 1], got {p}"
             raise ModelError(msg)
         for key in ("b", "seconds", "mu"):
             if key in p and p[key] < 0 and self.effect != "friction_patch":
@@ -201,10 +212,20 @@ def compose_observation(exts: Sequence[ModelExtension], pose: ArrayLike) -> F64:
     return p
 
 
-def support_friction_mu(exts: Sequence[ModelExtension]) -> float:
-    """Support-plane friction coefficient (0 when absent; the last one wins)."""
-    mu = 0.0
+def support_friction_mu(exts: Sequence[ModelExtension]) -> float | None:
+    """Support-plane friction coefficient of a ``support_friction`` extension (None when
+    absent; the last one wins)."""
+    mu: float | None = None
     for e in exts:
         if e.effect == "support_friction":
             mu = e.param("mu")
     return mu
+
+
+def support_rim_fraction(exts: Sequence[ModelExtension]) -> float | None:
+    """rim_fraction of a ``support_pressure`` extension (None when absent; the last wins)."""
+    f: float | None = None
+    for e in exts:
+        if e.effect == "support_pressure":
+            f = e.param("rim_fraction")
+    return f

@@ -171,6 +171,8 @@ def _support_cached(
         p, w = _uniform_support(v, target)
     elif pressure == "rim":
         p, w = _rim_support(v, target)
+    elif pressure == "vertices":
+        p, w = v.copy(), np.ones(len(v))
     else:
         p, w = _tripod_support(v)
     w = w / np.sum(w)
@@ -193,7 +195,9 @@ def support_points(
     ``uniform`` - the outline area, triangulated from the centre of mass (else from vertex 0)
     and each triangle cut into k^2 equal sub-triangles (their centroids, weights = areas;
     about `target` points); ``rim`` - the outline, each edge cut into pieces of about
-    perimeter / target (midpoints, weights = lengths); ``centre`` - one point at the centre
+    perimeter / target (midpoints, weights = lengths); ``vertices`` - the outline's vertices,
+    equal weights (a block resting on its corners; pybullet's contact manifold of a box on a
+    plane); ``centre`` - one point at the centre
     of mass (no rotational support friction); ``tripod`` - three equal points at 120 deg on
     a circle of 0.9 x the largest radius about the centre of mass that fits in the outline.
     rim_fraction in [0, 1] (the ``support_pressure`` effect): the weights are

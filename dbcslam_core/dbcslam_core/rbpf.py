@@ -176,8 +176,8 @@ class FilterConfig:
             }
         elif kind in ("gripper", "push"):
             base = {
-                "parameter_model": "mixture",
-                "contact_weight": 0.999,
+                "parameter_model": "reuse",
+                "contact_weight": 1.0,
                 "free_weight": 1.0,
                 "map_range": (-0.2, 0.2),
                 "friction_hold_steps": 20,

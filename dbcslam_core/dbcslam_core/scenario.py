@@ -24,7 +24,8 @@ Scenario keys added here (defaults shown):
   and ``surface: {pair: null, pressure: uniform, mu: 0.0, velocity_eps: 1.0e-4}`` (support
   friction, all keys optional: `pair` names the friction pair of the body-support contact,
   estimated like any pair; without a pair the coefficient is the known `mu` (default 0,
-  frictionless); `pressure` is the pressure distribution ``uniform | rim | centre | tripod``
+  frictionless); `pressure` is the pressure distribution
+  ``uniform | rim | vertices | centre | tripod``
   (`geometry.support_points`); `velocity_eps` (m/s) regularises the Coulomb support friction
   (`PlanarModel.support_matrix`); other numeric keys are kept verbatim).
 
@@ -342,7 +343,7 @@ class Disk:
 Obstacle = HalfSpace | Disk
 
 
-PRESSURE_MODELS: tuple[str, ...] = ("uniform", "rim", "centre", "tripod")
+PRESSURE_MODELS: tuple[str, ...] = ("uniform", "rim", "vertices", "centre", "tripod")
 """Support pressure distributions (`surface.pressure`, see `geometry.support_points`)."""
 
 DEFAULT_VELOCITY_EPS: float = 1e-4

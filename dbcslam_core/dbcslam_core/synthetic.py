@@ -15,12 +15,16 @@ obs[k] = observed pose at t_k (position std `noise.position`, yaw std `noise.yaw
 * `gripper_trajectory` (Fig. 4): equilateral triangle between two closing jaws (friction 0.4)
   on a frictionless support, driven by a time-varying force and moment: vertex and edge
   contacts, stick-slip, ends grasped by both jaws.
+* `push_trajectory` (MIT push set-up): a disk pusher moving on a straight line at constant
+  speed pushes a polygon on a table with support friction (`PlanarModel.support_matrix`),
+  then stops: separated approach, sticking / sliding pusher contact, quasi-static stop.
 
 `seed` changes the observation noise and mildly (a few percent) the force profile.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,18 +34,21 @@ from numpy.typing import NDArray
 
 from .contact_modes import Mode
 from .dynamics import PlanarModel, State
-from .errors import SolverError
+from .errors import ModelError, SolverError
 from .extensions import ModelExtension, compose_observation
 from .geometry import contact_kinematics, wrap_angle
-from .scenario import Scenario, edge_scenario, gripper_scenario
+from .scenario import Scenario, SurfaceSpec, edge_scenario, gripper_scenario, push_scenario
 
 __all__ = [
     "EDGE_ROUGH",
+    "PUSH_RECT",
     "Trajectory",
     "edge_mu_field",
     "edge_trajectory",
     "gripper_trajectory",
     "observe",
+    "push_path",
+    "push_trajectory",
     "simulate",
 ]
 
@@ -49,6 +56,16 @@ F64 = NDArray[np.float64]
 
 EDGE_ROUGH: tuple[float, float] = (0.45, 0.85)
 """Rough region [x_min, x_max] (m) of the edge experiment."""
+
+PUSH_RECT: tuple[tuple[float, float], ...] = (
+    (-0.045, -0.045),
+    (0.045, -0.045),
+    (0.045, 0.045),
+    (-0.045, 0.045),
+)
+"""Outline (m, about the centre of mass, CCW) of the MIT push `rect1` block (90 x 90 mm)."""
+PUSH_RECT_MASS: float = 0.8374
+"""kg (13 mm stainless steel)."""
 
 
 @dataclass(frozen=True)
@@ -90,6 +107,7 @@ def simulate(
     *,
     mu: Callable[[F64], F64] | float,
     grip_force_limit: float | None = None,
+    mu_surface: float | None = None,
 ) -> tuple[F64, F64, F64, NDArray[np.int64], F64, F64, F64]:
     """Roll `model` out from (q0, v0) under inputs u[T, nq] and commanded joints env[T, E].
 
@@ -97,7 +115,8 @@ def simulate(
     (position-controlled obstacles jamming the body) or needs a normal force above the limit
     is redone with the joints held still; afterwards the joints follow the command again
     (at most the commanded speed). Returns q, v [T, nq], the executed joints env [T, E],
-    modes, ln, lt, mu [T, C] (row 0 from the initial gap).
+    modes, ln, lt, mu [T, C] (row 0 from the initial gap). mu_surface: support friction
+    coefficient (`PlanarModel.surface_mu`; needed when the scenario names a support pair).
     """
     n = u.shape[0]
     nq, nc = model.nq, model.nc
@@ -116,18 +135,18 @@ def simulate(
     for k in range(n - 1):
         state = State(q[k], v[k])
         if grip_force_limit is None:
-            r = model.step(state, u[k], act[k], act[k + 1], mu=mu)
+            r = model.step(state, u[k], act[k], act[k + 1], mu=mu, mu_surface=mu_surface)
         else:
             vmax = np.max(np.abs(np.diff(env, axis=0)), axis=0) if n > 1 else 0.0
             act[k + 1] = act[k] + np.clip(env[k + 1] - act[k], -vmax, vmax)
             try:
-                r = model.step(state, u[k], act[k], act[k + 1], mu=mu)
+                r = model.step(state, u[k], act[k], act[k + 1], mu=mu, mu_surface=mu_surface)
                 ok = bool(np.all(r.ln <= grip_force_limit * dt))
             except SolverError:
                 ok = False
             if not ok:
                 act[k + 1] = act[k]
-                r = model.step(state, u[k], act[k], act[k + 1], mu=mu)
+                r = model.step(state, u[k], act[k], act[k + 1], mu=mu, mu_surface=mu_surface)
         q[k + 1], v[k + 1] = r.q, r.v
         modes[k + 1], ln[k + 1], lt[k + 1], mus[k + 1] = r.modes, r.ln, r.lt, r.mu
     return q, v, act, modes, ln, lt, mus
@@ -307,3 +326,114 @@ def gripper_trajectory(
     )
     obs, env_obs = observe(sc, q, env, gen, extensions)
     return Trajectory(sc, t, q, v, u, env, modes, ln, lt, mus, np.array([mu_jaw]), obs, env_obs)
+
+
+def push_path(
+    vertices: Sequence[Sequence[float]],
+    *,
+    side: int,
+    side_position: float,
+    angle: float,
+    pusher_radius: float,
+    approach: float,
+) -> tuple[F64, F64]:
+    """Start point (m) and unit direction of a straight push (the sim_publisher convention).
+
+    vertices (n, 2) counter-clockwise outline (world frame); side i runs from vertex i to
+    vertex i + 1; the contact point lies at `side_position` in [0, 1] along it; the push
+    direction is the side's inward normal rotated by `angle` (rad, counter-clockwise); the
+    pusher centre touches at the contact point plus `pusher_radius` along the outward normal
+    and starts `approach` (m) before it along the direction.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    n = len(v)
+    if not 0 <= side < n:
+        msg = f"push side {side} is out of range; valid: 0 .. {n - 1} for this outline"
+        raise ModelError(msg)
+    if not 0.0 <= side_position <= 1.0:
+        msg = f"push side_position must lie in [0, 1], got {side_position}"
+        raise ModelError(msg)
+    a, b = v[side], v[(side + 1) % n]
+    e = b - a
+    outward = np.array([e[1], -e[0]]) / float(np.linalg.norm(e))
+    c, s_ = math.cos(angle), math.sin(angle)
+    direction = np.array([-c * outward[0] + s_ * outward[1], -s_ * outward[0] - c * outward[1]])
+    touch = a + side_position * e + pusher_radius * outward
+    return touch - approach * direction, direction
+
+
+def push_trajectory(
+    seed: int = 0,
+    *,
+    scenario: Scenario | None = None,
+    vertices: Sequence[Sequence[float]] = PUSH_RECT,
+    mass: float = PUSH_RECT_MASS,
+    inertia: float | None = None,
+    speed: float = 0.05,
+    side: int = 0,
+    side_position: float = 0.5,
+    angle: float = 0.0,
+    approach: float = 0.01,
+    travel: float = 0.05,
+    duration: float | None = None,
+    mu_pusher: float = 0.4,
+    mu_surface: float = 0.25,
+    pressure: str | None = None,
+    extensions: Sequence[ModelExtension] = (),
+    rng: np.random.Generator | None = None,
+) -> Trajectory:
+    """A straight push at constant speed (the MIT push set-up), truth by `PlanarModel.step`.
+
+    scenario: a push `Scenario` (default: `push_scenario(vertices, mass=, inertia=,
+    support_pair="surface", pressure=)`, candidates (0.1, 0.25, 0.4)); `pressure` overrides
+    its ``surface.pressure``. The object starts at rest at the origin (yaw 0); the pusher
+    (joints pusher_x, pusher_y) starts `approach` (m) before touching side `side` at
+    `side_position`, moves along the side's inward normal rotated by `angle` (rad) at
+    `speed` (m/s) for approach + travel, then holds still (duration default: that plus
+    0.3 s). True friction: `mu_pusher` (pusher pair), `mu_surface` (support: the scenario's
+    surface pair if any, else used directly). u = 0 (no other wrench). `seed` changes the
+    observation noise only.
+    """
+    sc = scenario
+    if sc is None:
+        sc = push_scenario(
+            vertices, mass=mass, inertia=inertia, support_pair="surface", pressure=pressure
+        )
+    elif pressure is not None:
+        sc = dataclasses.replace(
+            sc, surface=SurfaceSpec(sc.surface.pair, sc.surface.params, pressure)
+        )
+    if sc.kind != "push":
+        msg = f"push_trajectory needs a 'push' scenario, got {sc.kind!r}"
+        raise ModelError(msg)
+    if not speed > 0.0:
+        msg = f"push speed must be > 0 m/s, got {speed}"
+        raise ModelError(msg)
+    gen = rng if rng is not None else np.random.default_rng(seed)
+    model = PlanarModel(sc, extensions, active_set=True)
+    dt = sc.dt
+    move = (approach + travel) / speed
+    dur = move + 0.3 if duration is None else duration
+    n = round(dur / dt) + 1
+    t = np.arange(n, dtype=np.float64) * dt
+    start, direction = push_path(
+        sc.body.vertices,
+        side=side,
+        side_position=side_position,
+        angle=angle,
+        pusher_radius=sc.pusher_radius,
+        approach=approach,
+    )
+    dist = speed * np.minimum(t, move)
+    env = start[None, :] + dist[:, None] * direction[None, :]
+    u = np.zeros((n, 3))
+    q, v, env, modes, ln, lt, mus = simulate(
+        model, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), u, env, mu=mu_pusher, mu_surface=mu_surface
+    )
+    mu_pair = np.full(len(sc.friction.pairs), np.nan)
+    for pc in sc.potential_contacts:
+        mu_pair[pc.pair] = mu_pusher
+    if model.surface_pair is not None:
+        mu_pair[model.surface_pair] = mu_surface
+    obs, env_obs = observe(sc, q, env, gen, extensions)
+    return Trajectory(sc, t, q, v, u, env, modes, ln, lt, mus, mu_pair, obs, env_obs)

@@ -17,8 +17,10 @@ What is measured (all on the synthetic paper data of :mod:`dbcslam_core.syntheti
    the black-box PGS filter (full metrics of :func:`dbcslam_core.experiments.score`).
 
 Timing: ``time.perf_counter`` around each ``step`` call, the first ``--warmup`` steps
-discarded, the median of the rest reported (ms/step). Both filters use the same process
-noise (the DBC-SLAM preset of the scenario kind) and the same observation model.
+discarded, the median of the rest reported (ms/step). Both filters use the same observation
+model, position noise and warm-up; the black-box filter's velocity process noise is its own
+(tuned) one, ``NCPFilterConfig.default_noise``, because with DBC-SLAM's tighter noise the
+bootstrap filter degenerates.
 
 Writes ``bench.md`` and ``bench.json`` into ``--out`` (default ``dbcslam_core/doc/results``)
 and prints the Markdown table.

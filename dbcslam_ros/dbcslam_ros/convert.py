@@ -212,16 +212,18 @@ def _pose(x: float, y: float, yaw: float) -> Any:
     )
 
 
-def pose_stamped(stamp_ns: int, x: float, y: float, yaw: float, frame_id: str = "world") -> Any:
-    """Planar pose -> geometry_msgs/PoseStamped."""
+def pose_stamped(
+    stamp_ns: int, x: float, y: float, yaw: float = 0.0, *, frame_id: str = "world"
+) -> Any:
+    """Planar pose (m, m, rad; yaw 0 for a point mass) -> geometry_msgs/PoseStamped."""
     cls = rt.message_class("geometry_msgs/msg/PoseStamped")
     return cls(header=_header(stamp_ns, frame_id), pose=_pose(x, y, yaw))
 
 
 def wrench_stamped(
-    stamp_ns: int, fx: float, fy: float, tau: float, frame_id: str = "world"
+    stamp_ns: int, fx: float, fy: float, tau: float = 0.0, *, frame_id: str = "world"
 ) -> Any:
-    """Planar wrench -> geometry_msgs/WrenchStamped."""
+    """Planar wrench (N, N, N m; tau 0 for a point mass) -> geometry_msgs/WrenchStamped."""
     cls = rt.message_class("geometry_msgs/msg/WrenchStamped")
     wrench_cls = rt.message_class("geometry_msgs/msg/Wrench")
     vec = rt.message_class("geometry_msgs/msg/Vector3")
@@ -296,6 +298,10 @@ def estimate_messages(
     ):
         if not np.all(np.isfinite(arr)):
             msg = f"estimate field {name} has non-finite values at step {est.step}"
+            raise ValueError(msg)
+    for pair, probs in enumerate(est.friction_map.probs):
+        if not np.all(np.isfinite(probs)):
+            msg = f"friction map of pair {pair} has non-finite values at step {est.step}"
             raise ValueError(msg)
     x, y, yaw = (float(v) for v in est.pose)
     pwc_cls = rt.message_class("geometry_msgs/msg/PoseWithCovarianceStamped")

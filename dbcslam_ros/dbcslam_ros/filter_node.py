@@ -87,8 +87,15 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "reset_after": (0.5, "s; a jump back in time larger than this resets the filter"),
 }
 
-#: Consecutive gated (outlier) poses after which the filter is re-initialised.
-MAX_CONSECUTIVE_OUTLIERS = 20
+#: A filter step slower than this (s) is logged as a warning.
+SLOW_STEP_S = 0.5
+
+#: Number of recent processed poses the step-time and latency statistics cover.
+WINDOW = 1000
+
+#: Poses in a row rejected by the gate; the next one is accepted (a persistent deviation is
+#: a change of motion the filter must follow, not a sensor outlier).
+MAX_CONSECUTIVE_OUTLIERS = 3
 
 MODE_COLOURS = (
     (0.6, 0.6, 0.6),  # separated: grey
@@ -146,9 +153,10 @@ class FilterNode:
         self.published = 0
         self.not_published: Counter[str] = Counter()
         self.backlog_dropped = 0
-        self.step_times: deque[float] = deque(maxlen=200)
-        self.model_steps: deque[int] = deque(maxlen=200)
-        self.latencies: deque[float] = deque(maxlen=200)
+        # statistics over the last WINDOW processed poses
+        self.step_times: deque[float] = deque(maxlen=WINDOW)
+        self.model_steps: deque[int] = deque(maxlen=WINDOW)
+        self.latencies: deque[float] = deque(maxlen=WINDOW)
         self.last_estimate: StampedEstimate | None = None
         self._pending: tuple[PoseReading, float] | None = None
         self._dropped_since_step = False
@@ -284,12 +292,16 @@ class FilterNode:
         except InputRejected as err:
             self._reject(err.reason, f"rejected /object/pose: {err}")
             return
+        newest = max(
+            self._pending[0].stamp_ns if self._pending is not None else -1,
+            self.session.last_pose_ns if self.session.last_pose_ns is not None else -1,
+        )
+        back_ns = newest - reading.stamp_ns
+        if newest >= 0 and 0 <= back_ns <= self.session.reset_after_ns:
+            # Not newer than the newest pose: a repeated or backwards stamp, not backlog.
+            self._reject("stamp_order", "rejected /object/pose: stamp not newer than the last")
+            return
         if self._pending is not None:
-            back_ns = self._pending[0].stamp_ns - reading.stamp_ns
-            if 0 < back_ns <= self.session.reset_after_ns:
-                # Older than the queued one: a reordered or backwards stamp, not backlog.
-                self._reject("stamp_order", "rejected /object/pose: stamp went backwards")
-                return
             self.session.reject("backlog")
             self.backlog_dropped += 1
             self._dropped_since_step = True
@@ -305,17 +317,15 @@ class FilterNode:
         self._dropped_since_step = False
         session = self.session
         if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
-            self._outliers_in_row += 1
-            self._reject("outlier", "rejected /object/pose: outside the gating threshold")
-            if self._outliers_in_row >= MAX_CONSECUTIVE_OUTLIERS:
-                self.log.warning(
-                    f"{self._outliers_in_row} poses in a row outside the gate: "
-                    "re-initialising the filter"
-                )
-                self._outliers_in_row = 0
-                session.reset(keep_until_ns=reading.stamp_ns)
-                self.last_estimate = None
-            return
+            if self._outliers_in_row < MAX_CONSECUTIVE_OUTLIERS:
+                self._outliers_in_row += 1
+                self._reject("outlier", "rejected /object/pose: outside the gating threshold")
+                return
+            # Persistent: the motion changed, not the sensor. Let the filter follow.
+            self.log.info(
+                f"{self._outliers_in_row} poses in a row outside the gate: accepting",
+                throttle_duration_sec=2.0,
+            )
         self._outliers_in_row = 0
         resets = session.resets
         try:
@@ -377,6 +387,12 @@ class FilterNode:
             except (ValueError, DbcSlamError) as err:
                 self.not_published["markers"] += 1
                 self.log.warning(f"markers not published: {err}", throttle_duration_sec=5.0)
+        if res.step_time_s > SLOW_STEP_S:
+            self.log.warning(
+                f"slow filter step: {res.step_time_s:.3f} s for {res.model_steps} model "
+                f"step(s) at stamp {res.stamp_ns * 1e-9:.3f} s",
+                throttle_duration_sec=5.0,
+            )
         self.published += 1
         self.step_times.append(res.step_time_s)
         self.model_steps.append(res.model_steps)
@@ -511,11 +527,13 @@ class FilterNode:
             times = np.asarray(self.step_times) * 1e3
             steps = np.asarray(self.model_steps, dtype=np.float64)
             values["step_time_ms_mean"] = f"{times.mean():.3f}"
+            values["step_time_ms_p95"] = f"{np.percentile(times, 95):.3f}"
             values["step_time_ms_max"] = f"{times.max():.3f}"
             values["model_step_time_ms_mean"] = f"{(times / steps).mean():.3f}"
         if self.latencies:
             lat = np.asarray(self.latencies) * 1e3
             values["latency_ms_mean"] = f"{lat.mean():.3f}"
+            values["latency_ms_p95"] = f"{np.percentile(lat, 95):.3f}"
             values["latency_ms_max"] = f"{lat.max():.3f}"
         return values
 

@@ -293,9 +293,9 @@ def plot_live_hypotheses(
     )
     ax.set_xlabel("time [s]")
     ax.set_ylabel("hypotheses [-]")
-    ttl = title or "Live contact-mode hypotheses per particle"
+    ttl = title or "Live mode hypotheses per particle"
     if total is not None:
-        ttl += f" (of {total} joint modes)"
+        ttl += f" (of {total})"
     ax.set_title(ttl)
     ax.set_yscale("log")
     ax.legend(fontsize=7, loc="best")

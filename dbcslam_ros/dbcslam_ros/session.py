@@ -15,7 +15,8 @@ observation into filter steps. Rules (documented in the README):
   rejected (reason `stamp_order`); a jump back in time of more than `reset_after_s` (a bag
   played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
   predict-only steps first (dropped observations); a gap longer than `max_gap_s` (a stalled
-  sensor) re-initialises the filter at the new pose instead (counted in `resets`).
+  sensor) re-initialises the filter at the new pose instead (counted in `resets`), except in
+  catch-up.
 * Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
   model steps for a gap of n > m steps, the last m of the gap; the state is held over the
   skipped n - m steps (counted in `skipped_steps`). The model never runs faster than it
@@ -166,7 +167,8 @@ class FilterSession:
         if last is not None and reading.stamp_ns < last - self.reset_after_ns:
             self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
             last = None
-        if last is not None and reading.stamp_ns - last > self.max_gap_ns:
+        if max_steps is None and last is not None and reading.stamp_ns - last > self.max_gap_ns:
+            # A stalled sensor (not our own backlog, which catches up with max_steps).
             self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
             last = None
         if last is not None and reading.stamp_ns - last < dt_ns // 2:
@@ -213,6 +215,11 @@ class FilterSession:
         return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started, n_run)]
 
     # -- introspection --------------------------------------------------------------------
+    @property
+    def last_pose_ns(self) -> int | None:
+        """Stamp (ns) of the last pose used (None before the first one / after a reset)."""
+        return self._last_pose_ns
+
     def particles(self) -> tuple[np.ndarray, np.ndarray]:
         """Particle configurations q (P, nq) and normalised weights (P,) (for markers)."""
         flt = self._filter

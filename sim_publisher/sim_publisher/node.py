@@ -332,17 +332,21 @@ class SimNode:
                 )
             )
             fx, fy, tau = (float(v) for v in tick.wrench)
-            self.pubs["/object/wrench"].publish(wrench_stamped(stamp_ns, fx, fy, tau, self.frame))
+            self.pubs["/object/wrench"].publish(
+                wrench_stamped(stamp_ns, fx, fy, tau, frame_id=self.frame)
+            )
             if tick.pusher_wrench is not None and "/pusher/wrench" in self.pubs:
                 px, py, ptau = (float(v) for v in tick.pusher_wrench)
                 self.pubs["/pusher/wrench"].publish(
-                    wrench_stamped(stamp_ns, px, py, ptau, self.frame)
+                    wrench_stamped(stamp_ns, px, py, ptau, frame_id=self.frame)
                 )
             ox, oy, oyaw = (float(v) for v in tick.observed_pose)
-            self.pubs["/object/pose"].publish(pose_stamped(stamp_ns, ox, oy, oyaw, self.frame))
+            self.pubs["/object/pose"].publish(
+                pose_stamped(stamp_ns, ox, oy, oyaw, frame_id=self.frame)
+            )
             tx, ty, tyaw = (float(v) for v in tick.pose)
             self.pubs["/truth/object/pose"].publish(
-                pose_stamped(stamp_ns, tx, ty, tyaw, self.frame)
+                pose_stamped(stamp_ns, tx, ty, tyaw, frame_id=self.frame)
             )
             self.pubs["/truth/contact_modes"].publish(
                 float64_multiarray(tick.modes, ("contacts", "modes"))

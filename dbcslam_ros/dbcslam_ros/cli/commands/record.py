@@ -21,6 +21,24 @@ __all__ = ["COMMAND", "RECORDER_NODE"]
 
 #: Node name of the recorder.
 RECORDER_NODE = "dbcslam_record"
+#: Topics of the interface contract and their types (``--contract``).
+CONTRACT_TOPICS: dict[str, str] = {
+    "/scenario": "std_msgs/msg/String",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/object/wrench": "geometry_msgs/msg/WrenchStamped",
+    "/pusher/wrench": "geometry_msgs/msg/WrenchStamped",
+    "/object/pose": "geometry_msgs/msg/PoseStamped",
+    "/truth/object/pose": "geometry_msgs/msg/PoseStamped",
+    "/truth/contact_modes": "std_msgs/msg/Float64MultiArray",
+    "/truth/friction": "std_msgs/msg/Float64MultiArray",
+    "/dbcslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/dbcslam/odometry": "nav_msgs/msg/Odometry",
+    "/dbcslam/contact_modes": "std_msgs/msg/Float64MultiArray",
+    "/dbcslam/friction": "std_msgs/msg/Float64MultiArray",
+    "/dbcslam/friction_map": "nav_msgs/msg/OccupancyGrid",
+    "/dbcslam/markers": "visualization_msgs/msg/MarkerArray",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
 #: Subscription history depth: generous so bursts are not dropped before they are taken.
 _DEPTH = 1000
 _DISCOVERY_PERIOD_S = 0.2
@@ -35,7 +53,9 @@ Without TOPIC arguments every topic is recorded; topics that appear later are pi
 (the graph is polled every 0.2 s). Each topic is subscribed with a QoS compatible with
 what its publishers offer (reliable if all are, transient local if all are, so latched
 topics such as /scenario are recorded even when published before the recorder started).
-Log time = receive time (ns since the epoch).
+Log time = receive time (ns since the epoch). --contract subscribes to the topics of the
+interface contract at once, with their contract types and QoS, so nothing a node started
+afterwards publishes is missed (`dbcslam demo` uses it); other topics are still discovered.
 
 SIGINT (Ctrl-C) or SIGTERM, or the end of --duration, stops the recording: pending
 messages are written and the bag is closed properly, its counts matching what was
@@ -59,6 +79,7 @@ class _Recorder:
         self.all_topics = not topics
         self.subscribed: dict[str, Any] = {}
         self.skipped: set[str] = set()
+        self.added: set[str] = set()
 
     def discover(self) -> None:
         from dbcslam_ros.bag.types import message_definition
@@ -94,6 +115,43 @@ class _Recorder:
             )
             print(f"recording {topic} [{type_name}]", file=sys.stderr, flush=True)
 
+    def subscribe_contract(self) -> None:
+        """Subscribe now to every contract topic with its contract type and QoS (before any
+        publisher exists, so the first messages of a node started next are not missed).
+        A topic enters the bag with its first message."""
+        from dbcslam_ros.bag.qos import contract_qos
+
+        for topic, type_name in CONTRACT_TOPICS.items():
+            if not self.all_topics and topic not in self.wanted:
+                continue
+            bag_qos = contract_qos(topic)
+            qos = subscription_qos_for([_bag_qos_to_runtime(bag_qos)], depth=_DEPTH)
+
+            def on_message(
+                data: bytes, topic: str = topic, type_name: str = type_name, bag_qos: Any = bag_qos
+            ) -> None:
+                if topic not in self.added:
+                    self.writer.add_topic(topic, type_name, [bag_qos])
+                    self.added.add(topic)
+                self.writer.write(topic, data, time.time_ns())
+
+            self.subscribed[topic] = self.rt.create_raw_subscription(
+                self.node, type_name, topic, on_message, native_qos(self.rt, qos)
+            )
+            print(f"recording {topic} [{type_name}]", file=sys.stderr, flush=True)
+
+
+def _bag_qos_to_runtime(qos: Any) -> Any:
+    from dbcslam_ros.bag.qos import QosDurability, QosReliability
+    from dbcslam_ros.runtime.qos import QoSProfile
+
+    return QoSProfile(
+        "reliable" if qos.reliability == QosReliability.RELIABLE else "best_effort",
+        "transient_local" if qos.durability == QosDurability.TRANSIENT_LOCAL else "volatile",
+        "keep_last",
+        max(1, int(qos.depth)),
+    )
+
 
 def _run(args: argparse.Namespace) -> int:
     from dbcslam_ros.bag.writer import BagWriter
@@ -107,6 +165,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with node_session(RECORDER_NODE) as (rt, node, stop):
             rec = _Recorder(rt, node, writer, list(args.topics))
+            if args.contract:
+                rec.subscribe_contract()
             start = time.monotonic()
             end = None if args.duration is None else start + args.duration
             next_discovery = start
@@ -151,6 +211,12 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "--duration", type=positive_float, metavar="S", help="stop after S seconds"
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress counts")
+    parser.add_argument(
+        "--contract",
+        action="store_true",
+        help="subscribe to the contract topics at once (contract types and QoS), before "
+        "their publishers appear",
+    )
 
 
 COMMAND = Command(

@@ -1,0 +1,381 @@
+"""``dbcslam import-mitpush H5 ... -o DIR``: MIT MCube push files -> bags of the contract.
+
+One bag per push file, named after the file (``DIR/<file stem>``). Every bag holds, on one
+clock of step ``--dt`` (stamps = the data's Unix time in ns, log time = stamp):
+
+* ``/scenario`` (latched, first message): ``push`` scenario with the shape's outline (body
+  frame about the centroid, see :mod:`dbcslam_ros.mitpush` for the alignment), mass and
+  inertia from the dataset table, pusher radius 4.75 mm, dt, friction pairs ``pusher`` and
+  ``surface`` with the candidate lists and uniform priors, observation noise std = the added
+  noise (or the floor 1 mm / 0.01 rad when none is added), contacts ``[pusher]``.
+* ``/joint_states``: ``pusher_x``, ``pusher_y`` (tip centre, world, m).
+* ``/object/pose``: aligned Vicon pose plus the added noise; ``/truth/object/pose``: the same
+  without noise (the best available truth: Vicon).
+* ``/object/wrench``: zero (no known wrench acts on the object; the pusher is a moving
+  obstacle).
+* ``/pusher/wrench``: F/T force on the pusher, world axes (mean over each step), tau_z as
+  measured. Omitted when the file's F/T stream is stale (all ``rect1`` files here).
+* ``/pusher/contact`` (std_msgs/Float64MultiArray, reliable): the contact flag, dims
+  ``contacts`` (size 1: ``pusher``) x ``state`` (size 2: ``separated``, ``in_contact``),
+  one-hot. Sticking vs sliding is not observable from the F/T sensor, so the flag does not
+  pretend to be a ``/truth/contact_modes`` message: only "separated" has the meaning it has
+  there (``1 - data[0]`` = in contact). Source: F/T force magnitude > ``--contact-threshold``
+  (default 0.25 N), or geometry (tip-outline gap within 1 mm of its value while the object
+  moves, :func:`dbcslam_ros.mitpush.geometric_contact`) when the F/T stream is stale; the
+  bag's ``custom_data`` says which.
+
+Per step the messages are written in the order joints, wrenches, contact, pose, truth, all
+at the step's stamp. ``metadata.yaml`` ``custom_data`` records the source file, shape,
+alignment constants, dt, noise, seed and contact source.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.errors import UsageError
+
+if TYPE_CHECKING:
+    from dbcslam_core.scenario import Scenario
+    from dbcslam_ros.bag.metadata import BagMetadata
+    from dbcslam_ros.mitpush import ImportConfig, PushSeries
+
+__all__ = ["COMMAND", "CONTACT_TOPIC", "TOPICS", "make_scenario", "write_push_bag"]
+
+#: Topic of the contact flag (see the module docstring for its layout).
+CONTACT_TOPIC = "/pusher/contact"
+#: Topics an imported bag holds (``/pusher/wrench`` only with a usable F/T stream).
+TOPICS: tuple[str, ...] = (
+    "/scenario",
+    "/joint_states",
+    "/object/wrench",
+    "/pusher/wrench",
+    CONTACT_TOPIC,
+    "/object/pose",
+    "/truth/object/pose",
+)
+
+_DESCRIPTION = """\
+Convert MIT MCube planar-pushing files (motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T.h5 with
+tip_pose, object_pose, ft_wrench) into bags of the DBC-SLAM contract, one bag per file under
+DIR (named after the file). H5 arguments may be files or directories (searched recursively
+for .h5). The streams are resampled onto one clock of step --dt (linear interpolation, yaw
+unwrapped, F/T averaged per step); the Vicon pose is aligned with the shape's outline (per-
+shape constants, see dbcslam_ros.mitpush); optional Gaussian noise is added to the observed
+pose (--noise-position, --noise-yaw, seeded by --seed and the file name) while
+/truth/object/pose keeps the clean pose.
+
+Topics: /scenario (latched), /joint_states (pusher_x, pusher_y), /object/pose,
+/truth/object/pose, /object/wrench (zero), /pusher/wrench (F/T, world axes; omitted when the
+file's F/T stream is stale), /pusher/contact (Float64MultiArray contacts x [separated,
+in_contact], one-hot: F/T magnitude > --contact-threshold, or geometric for stale F/T).
+The outlines are read from the dataset's shapes/ directory (the nearest 'shapes' directory
+above each file) unless --shapes is given.
+
+All files are read and checked before any bag is written: a bad file (unreadable HDF5,
+missing dataset, empty stream, wrong shape name) stops the import with exit code 2 naming
+the file. Existing bags are not overwritten without --overwrite."""
+
+_EXAMPLES = """\
+  dbcslam import-mitpush /data/mit-push/abs/train -o bags/mitpush
+  dbcslam import-mitpush push1.h5 push2.h5 -o out --dt 0.004 --overwrite
+  dbcslam import-mitpush /data/mit-push/abs/train -o bags/noisy \\
+      --noise-position 0.002 --noise-yaw 0.02 --seed 7
+  dbcslam import-mitpush run.h5 -o out --shapes /data/mit-push/shapes \\
+      --pusher-candidates 0.15 0.25 --surface-candidates 0.1 0.2 0.3
+"""
+
+
+def _nonneg_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError as err:
+        msg = f"expected a number, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from err
+    if not (math.isfinite(value) and value >= 0.0):
+        msg = f"expected a finite number >= 0, got {text!r}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = _nonneg_float(text)
+    if value <= 0.0:
+        msg = f"expected a number > 0, got {text!r}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
+    """The ``/scenario`` of an imported push (validated by the core's Scenario)."""
+    import dataclasses
+
+    from dbcslam_core.scenario import FrictionSpec, push_scenario
+    from dbcslam_ros.mitpush import PUSHER_RADIUS, SHAPES
+
+    facts = SHAPES[series.raw.info.shape]
+    base = push_scenario(
+        [tuple(v) for v in series.outline.vertices.tolist()],
+        mass=facts.mass,
+        inertia=facts.inertia,
+        dt=config.dt,
+        pusher_radius=PUSHER_RADIUS,
+        candidates=config.pusher_candidates,
+        position_noise=config.position_std,
+        yaw_noise=config.yaw_std,
+        support_pair="surface",
+    )
+    cands = (tuple(config.pusher_candidates), tuple(config.surface_candidates))
+    friction = FrictionSpec(
+        pairs=("pusher", "surface"),
+        candidates=cands,
+        prior=tuple(tuple(1.0 / len(c) for _ in c) for c in cands),
+    )
+    return dataclasses.replace(base, friction=friction)
+
+
+def _custom_data(series: PushSeries, config: ImportConfig) -> dict[str, str]:
+    info = series.raw.info
+    return {
+        "source": "MIT MCube push dataset (Yu et al., IROS 2016)",
+        "source_file": series.raw.path.name,
+        "shape": info.shape,
+        "surface": info.surface,
+        "push_speed_m_s": repr(info.speed),
+        "push_side": str(info.side),
+        "push_position": repr(info.position),
+        "push_angle_rad": repr(info.angle),
+        "dt_s": repr(config.dt),
+        "alignment_yaw_offset_rad": repr(series.alignment.yaw_offset),
+        "alignment_offset_m": repr(list(series.alignment.offset)),
+        "noise_position_m": repr(config.noise_position),
+        "noise_yaw_rad": repr(config.noise_yaw),
+        "seed": str(config.seed),
+        "contact_source": series.contact_source,
+        "contact_threshold_n": repr(config.contact_threshold),
+        "ft_stale": str(series.force is None).lower(),
+    }
+
+
+def write_push_bag(
+    series: PushSeries, config: ImportConfig, path: Path, *, overwrite: bool = False
+) -> BagMetadata:
+    """Write one imported push as a bag (see the module docstring for the topics)."""
+    from dbcslam_ros import runtime as rt
+    from dbcslam_ros.bag import BagWriter
+    from dbcslam_ros.bag.qos import RELIABLE_QOS, contract_qos
+    from dbcslam_ros.convert import (
+        float64_multiarray,
+        ns_to_stamp,
+        pose_stamped,
+        wrench_stamped,
+    )
+
+    scenario = make_scenario(series, config)
+    string_cls = rt.message_class("std_msgs/msg/String")
+    joint_cls = rt.message_class("sensor_msgs/msg/JointState")
+    header_cls = rt.message_class("std_msgs/msg/Header")
+    names = list(scenario.joints)
+    types = {
+        "/scenario": "std_msgs/msg/String",
+        "/joint_states": "sensor_msgs/msg/JointState",
+        "/object/wrench": "geometry_msgs/msg/WrenchStamped",
+        "/pusher/wrench": "geometry_msgs/msg/WrenchStamped",
+        CONTACT_TOPIC: "std_msgs/msg/Float64MultiArray",
+        "/object/pose": "geometry_msgs/msg/PoseStamped",
+        "/truth/object/pose": "geometry_msgs/msg/PoseStamped",
+    }
+    if series.force is None:
+        del types["/pusher/wrench"]
+    created = not (path.exists() or path.is_symlink())
+    try:
+        with BagWriter(path, overwrite=overwrite, custom_data=_custom_data(series, config)) as bag:
+            for topic, msgtype in types.items():
+                qos = RELIABLE_QOS if topic == CONTACT_TOPIC else contract_qos(topic)
+                bag.add_topic(topic, msgtype, [qos])
+            stamps = [int(s) for s in series.stamps_ns]
+            bag.write("/scenario", rt.encode(string_cls(data=scenario.to_yaml())), stamps[0])
+            for k, ns in enumerate(stamps):
+                tx, ty = (float(v) for v in series.tip[k])
+                joints = joint_cls(
+                    header=header_cls(stamp=ns_to_stamp(ns), frame_id="world"),
+                    name=names,
+                    position=[tx, ty],
+                    velocity=[],
+                    effort=[],
+                )
+                bag.write("/joint_states", rt.encode(joints), ns)
+                bag.write("/object/wrench", zero_wrench(ns), ns)
+                if series.force is not None:
+                    fx, fy, tau = (float(v) for v in series.force[k])
+                    bag.write("/pusher/wrench", rt.encode(wrench_stamped(ns, fx, fy, tau)), ns)
+                flag = [[0.0, 1.0]] if series.contact[k] else [[1.0, 0.0]]
+                bag.write(
+                    CONTACT_TOPIC, rt.encode(float64_multiarray(flag, ("contacts", "state"))), ns
+                )
+                ox, oy, oyaw = (float(v) for v in series.observed[k])
+                bag.write("/object/pose", rt.encode(pose_stamped(ns, ox, oy, _wrap(oyaw))), ns)
+                x, y, yaw = (float(v) for v in series.pose[k])
+                bag.write("/truth/object/pose", rt.encode(pose_stamped(ns, x, y, _wrap(yaw))), ns)
+            return bag.close()
+    except BaseException:
+        # Never leave a half-written bag behind (a re-run would refuse to overwrite it).
+        if created:
+            shutil.rmtree(path, ignore_errors=True)
+        raise
+
+
+def zero_wrench(stamp_ns: int) -> bytes:
+    """CDR bytes of a zero geometry_msgs/WrenchStamped in ``world`` at ``stamp_ns``."""
+    from dbcslam_ros import runtime as rt
+    from dbcslam_ros.convert import wrench_stamped
+
+    return bytes(rt.encode(wrench_stamped(stamp_ns, 0.0, 0.0, 0.0)))
+
+
+def _wrap(angle: float) -> float:
+    return math.remainder(angle, 2.0 * math.pi)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from dbcslam_ros.mitpush import (
+        ImportConfig,
+        MitPushError,
+        Outline,
+        alignment_check,
+        find_shapes_dir,
+        load_outline,
+        load_push,
+        push_files,
+        resample_push,
+    )
+
+    try:
+        config = ImportConfig(
+            dt=args.dt,
+            noise_position=args.noise_position,
+            noise_yaw=args.noise_yaw,
+            seed=args.seed,
+            contact_threshold=args.contact_threshold,
+            pusher_candidates=tuple(args.pusher_candidates),
+            surface_candidates=tuple(args.surface_candidates),
+        )
+    except MitPushError as err:
+        raise UsageError(str(err)) from err
+    files = push_files(args.h5)
+    out_dir = Path(args.output)
+    targets = [out_dir / f.name.removesuffix(".h5") for f in files]
+    seen: dict[Path, Path] = {}
+    for f, target in zip(files, targets, strict=True):
+        if target in seen:
+            msg = f"{f}: same bag name as {seen[target]} ({target}); import them separately"
+            raise UsageError(msg)
+        seen[target] = f
+        if (target.exists() or target.is_symlink()) and not args.overwrite:
+            msg = f"{target}: already exists; not overwriting (pass --overwrite to replace)"
+            raise UsageError(msg)
+    # Read and check every file before writing anything.
+    outlines: dict[tuple[str, Path], Outline] = {}
+    series_list = []
+    for f in files:
+        raw = load_push(f)
+        shapes_dir = Path(args.shapes) if args.shapes else find_shapes_dir(f)
+        if shapes_dir is None:
+            msg = (
+                f"{f}: no 'shapes' directory with the outline of {raw.info.shape!r} found "
+                "above the file; pass --shapes DIR"
+            )
+            raise MitPushError(msg)
+        key = (raw.info.shape, shapes_dir)
+        if key not in outlines:
+            outlines[key] = load_outline(raw.info.shape, shapes_dir)
+        series_list.append(resample_push(raw, outlines[key], config))
+    total = len(files)
+    for i, (series, target) in enumerate(zip(series_list, targets, strict=True), start=1):
+        meta = write_push_bag(series, config, target, overwrite=args.overwrite)
+        check = alignment_check(series)
+        print(
+            f"[{i}/{total}] {series.raw.path.name} -> {target}: {len(series)} steps "
+            f"({series.t[-1]:.2f} s), {meta.message_count} messages, contact "
+            f"{100.0 * float(series.contact.mean()):.0f}% ({series.contact_source}), "
+            f"tip-outline gap while pushing {1000.0 * check.moving_gap:.2f} mm",
+            file=sys.stderr,
+        )
+    print(f"imported {total} push file(s) into {out_dir}", file=sys.stderr)
+    return 0
+
+
+def _configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "h5", nargs="+", metavar="H5", help="push file (.h5) or directory of push files"
+    )
+    parser.add_argument(
+        "-o", "--output", required=True, metavar="DIR", help="directory for the bags"
+    )
+    parser.add_argument(
+        "--dt",
+        type=_positive_float,
+        default=0.01,
+        metavar="S",
+        help="model step and resampling period, s (default 0.01; the data is ~250 Hz)",
+    )
+    parser.add_argument(
+        "--noise-position",
+        type=_nonneg_float,
+        default=0.0,
+        metavar="M",
+        help="std of Gaussian noise added to the observed position, m (default 0)",
+    )
+    parser.add_argument(
+        "--noise-yaw",
+        type=_nonneg_float,
+        default=0.0,
+        metavar="RAD",
+        help="std of Gaussian noise added to the observed yaw, rad (default 0)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the added noise (default 0)")
+    parser.add_argument(
+        "--contact-threshold",
+        type=_nonneg_float,
+        default=0.25,
+        metavar="N",
+        help="F/T force magnitude above which the pusher is in contact, N (default 0.25)",
+    )
+    parser.add_argument(
+        "--pusher-candidates",
+        type=_nonneg_float,
+        nargs="+",
+        default=[0.1, 0.2, 0.3],
+        metavar="MU",
+        help="candidate pusher-object friction coefficients (default 0.1 0.2 0.3)",
+    )
+    parser.add_argument(
+        "--surface-candidates",
+        type=_nonneg_float,
+        nargs="+",
+        default=[0.1, 0.2, 0.3],
+        metavar="MU",
+        help="candidate object-surface friction coefficients (default 0.1 0.2 0.3)",
+    )
+    parser.add_argument(
+        "--shapes",
+        metavar="DIR",
+        help="directory with <shape>_ext.npy outlines (default: the dataset's shapes/)",
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
+
+
+COMMAND = Command(
+    name="import-mitpush",
+    help="convert MIT MCube push files (.h5) into bags, one per file",
+    description=_DESCRIPTION,
+    examples=_EXAMPLES,
+    configure=_configure,
+    run=_run,
+)

@@ -1,0 +1,695 @@
+"""MIT MCube planar-pushing files (``.h5``) -> aligned, resampled push series (numpy + h5py).
+
+Data: "More than a Million Ways to Be Pushed" (K.-T. Yu, M. Bauza, N. Fazeli, A. Rodriguez,
+IROS 2016). Each file holds ``tip_pose``, ``object_pose`` and ``ft_wrench``, N x 4 arrays
+``[t, a, b, c]`` with their own Unix-time stamps (~250 Hz): the pusher tip (x, y, yaw), the
+Vicon-tracked object frame (x, y, yaw) and the F/T reading (fx, fy, tau_z). File names carry
+``motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T`` (:func:`parse_push_name`).
+
+What this module found in the 50 ABS training pushes and applies (numbers from
+``python -m dbcslam_ros.push_analysis``; see the report in that module):
+
+* **Frame of the outline.** The outline files ``shapes/<shape>_ext.npy`` are listed clockwise
+  and are the *mirror image* of the object as the Vicon frame sees it: a point (x, y) of the
+  file lies at (-y, -x) in the tracked frame. With the body frame chosen as the x-mirrored
+  outline ``(-x, y)`` (counter-clockwise, about its centroid), the body pose is the Vicon pose
+  rotated by ``yaw_offset = +pi/2`` (:data:`ALIGNMENTS`). For the four shapes here (mirror
+  symmetric) the mirrored outline is the same set of points as the file's outline. With this
+  frame the file-name fields follow the natural convention: side ``i`` runs from body vertex
+  ``i`` to ``i + 1`` (counter-clockwise order of the mirrored file) and ``s`` is the fraction
+  along it; for the smooth outlines (ellipses, > 8 vertices) ``s`` is the fraction of the
+  perimeter from vertex 0 (:func:`expected_contact`).
+* **Tracked frame vs centroid.** Fitted per shape (in-motion tip-to-outline distance plus
+  first-contact location): ``ellip1`` (+0.2, +0.6) mm, ``ellip3`` (-0.5, -1.5) mm with a
+  yaw correction of -0.0144 rad, ``rect1`` and ``hex`` none. The corrections a refit still
+  finds on top of these (``push_analysis`` prints them: yaw -0.010 to -0.025 rad, offsets
+  < 0.6 mm, except along ``rect1``'s single pushed side where the fit is unconstrained) are
+  not applied.
+  After alignment: first-contact location error (pushes with |t| < 1.2 rad) median
+  0.45-1.44 mm per shape, max 3.9 mm; median |distance - radius| while the object moves
+  0.34-0.80 mm. The polygons' tip sits ~0.6-0.7 mm outside their outline on average.
+* **F/T frame.** The force is the force the object exerts on the pusher, in the world (Vicon)
+  axes already: while the object moves its direction is ``push direction + pi - t`` up to the
+  friction tilt (median over files -0.012 rad, IQR [-0.14, +0.08] rad: no common rotation),
+  so no rotation is applied; its sign convention is the simulator's ``/pusher/wrench`` one.
+* **Stale F/T.** In every ``rect1`` file the F/T stream holds only 2-4 distinct readings (a
+  frozen sensor buffer); :func:`ft_is_stale` detects it (fewer than half the samples
+  distinct). Such files get no ``/pusher/wrench`` and a geometric contact flag.
+* **Contact flag.** In contact when the F/T force magnitude (mean over the model step)
+  exceeds :data:`CONTACT_THRESHOLD` = 0.25 N: the noise std at rest (first 0.15 s) is
+  0.027 N per axis (median over files; max 0.15 N). No bias is removed: in about half the
+  files the pusher already presses on the object at rest (preload 1-5 N along the later push
+  force), which is contact, not bias. With a stale F/T stream the flag is geometric
+  (:func:`geometric_contact`): tip-to-outline gap within :data:`GEOMETRIC_CONTACT_TOL` = 1 mm
+  of the push's own gap while the object moves (that gap is 0.0-1.8 mm per file: the
+  alignment varies slightly between recording sessions).
+* **Clocks.** The three streams start within 35 ms of each other; the series uses their
+  common interval on one clock of step ``dt`` (stamps = the data's Unix time in ns). No
+  offset between the tip and Vicon clocks is detectable: in near-sticking pushes the object
+  stops with the pusher (median lag +0.0 ms, 6 of 10 within 10 ms), so none is applied.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from dbcslam_ros.errors import BagError
+
+__all__ = [
+    "ALIGNMENTS",
+    "CONTACT_THRESHOLD",
+    "GEOMETRIC_CONTACT_TOL",
+    "PUSHER_RADIUS",
+    "SHAPES",
+    "STREAMS",
+    "AlignmentCheck",
+    "ImportConfig",
+    "MitPushError",
+    "Outline",
+    "PushInfo",
+    "PushSeries",
+    "RawPush",
+    "ShapeAlignment",
+    "ShapeFacts",
+    "alignment_check",
+    "expected_contact",
+    "find_shapes_dir",
+    "ft_is_stale",
+    "geometric_contact",
+    "load_outline",
+    "load_push",
+    "parse_push_name",
+    "push_files",
+    "resample_push",
+    "signed_distance",
+    "to_body",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+STREAMS: tuple[str, ...] = ("tip_pose", "object_pose", "ft_wrench")
+"""Datasets every push file must hold (N x 4 float arrays [t, ...])."""
+PUSHER_RADIUS: float = 0.00475
+"""Pusher tip radius, m (dataset configuration)."""
+CONTACT_THRESHOLD: float = 0.25
+"""Force magnitude (N) above which the F/T reading means contact (noise floor ~0.03 N)."""
+GEOMETRIC_CONTACT_TOL: float = 0.001
+"""Geometric contact flag (stale F/T): tip-outline gap above its bias below this, m."""
+MOVING_SPEED: float = 0.003
+"""Object speed (m/s) above which the object counts as moving (pushed, so in contact)."""
+STALE_FT_FRACTION: float = 0.5
+"""An F/T stream with fewer distinct readings than this fraction of its samples is stale."""
+ONSET_DISPLACEMENT: float = 0.0002
+"""Object displacement (m) from its initial position that marks the start of its motion."""
+
+
+class MitPushError(BagError):
+    """A push file (or its outline) cannot be imported; the message names the file."""
+
+
+@dataclass(frozen=True)
+class ShapeAlignment:
+    """Body frame of a shape relative to the Vicon-tracked frame.
+
+    yaw_offset: body yaw - Vicon yaw, rad. offset: position (m) of the outline file's origin
+    in the tracked frame (the tracked frame is not exactly at the outline's origin).
+    """
+
+    yaw_offset: float
+    offset: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ShapeFacts:
+    """Mass (kg) and polar inertia about the centroid (kg m^2) from the dataset's table."""
+
+    mass: float
+    inertia: float
+
+
+SHAPES: dict[str, ShapeFacts] = {
+    "rect1": ShapeFacts(0.8374, 1.131e-3),
+    "ellip1": ShapeFacts(0.8937, 1.231e-3),
+    "ellip3": ShapeFacts(1.3338, 2.973e-3),
+    "hex": ShapeFacts(0.9827, 1.497e-3),
+}
+
+_HALF_PI = 0.5 * math.pi
+ALIGNMENTS: dict[str, ShapeAlignment] = {
+    "rect1": ShapeAlignment(_HALF_PI),
+    "ellip1": ShapeAlignment(_HALF_PI, (0.0002, 0.0006)),
+    "ellip3": ShapeAlignment(_HALF_PI - 0.0144, (-0.0005, -0.0015)),
+    "hex": ShapeAlignment(_HALF_PI),
+}
+"""Per-shape alignment constants (see the module docstring for how they were measured)."""
+
+_NAME_RE = re.compile(
+    r"motion_surface=(?P<surface>[A-Za-z0-9]+)_shape=(?P<shape>[A-Za-z0-9]+)"
+    r"_a=(?P<a>-?[\d.]+)_v=(?P<v>-?[\d.]+)_i=(?P<i>-?[\d.]+)_s=(?P<s>-?[\d.]+)"
+    r"_t=(?P<t>-?[\d.]+)$"
+)
+
+
+@dataclass(frozen=True)
+class PushInfo:
+    """File-name fields: surface, shape, acceleration (m/s^2), speed (m/s), side index,
+    contact position along the side in [0, 1], push angle to the inward normal (rad)."""
+
+    surface: str
+    shape: str
+    acceleration: float
+    speed: float
+    side: int
+    position: float
+    angle: float
+
+
+def parse_push_name(path: str | Path) -> PushInfo:
+    """Parse ``motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T.h5`` (a in mm/s^2, v in mm/s).
+
+    Raises:
+        MitPushError: the name does not follow the pattern or names an unknown shape.
+    """
+    p = Path(path)
+    stem = p.name.removesuffix(".h5")
+    m = _NAME_RE.fullmatch(stem)
+    if m is None:
+        msg = (
+            f"{p}: file name does not follow "
+            "motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T.h5 (MIT push dataset naming)"
+        )
+        raise MitPushError(msg)
+    shape = m["shape"]
+    if shape not in SHAPES:
+        msg = f"{p}: unknown shape {shape!r}; valid shapes are {sorted(SHAPES)}"
+        raise MitPushError(msg)
+    try:
+        side_f = float(m["i"])
+        info = PushInfo(
+            surface=m["surface"],
+            shape=shape,
+            acceleration=float(m["a"]) * 1e-3,
+            speed=float(m["v"]) * 1e-3,
+            side=round(side_f),
+            position=float(m["s"]),
+            angle=float(m["t"]),
+        )
+    except ValueError as err:
+        msg = f"{p}: malformed number in the file name: {err}"
+        raise MitPushError(msg) from err
+    if abs(side_f - info.side) > 1e-9 or info.side < 0:
+        msg = f"{p}: side index i={m['i']} is not a non-negative integer"
+        raise MitPushError(msg)
+    return info
+
+
+@dataclass(frozen=True)
+class RawPush:
+    """One push file as stored: streams N x 4 [t (Unix s), ...], time-sorted, unique stamps."""
+
+    path: Path
+    info: PushInfo
+    tip: FloatArray
+    obj: FloatArray
+    ft: FloatArray
+
+
+def _clean_stream(path: Path, key: str, arr: FloatArray) -> FloatArray:
+    if arr.ndim != 2 or arr.shape[1] != 4:
+        msg = f"{path}: dataset '{key}' must be N x 4 [t, ...], got shape {arr.shape}"
+        raise MitPushError(msg)
+    if arr.shape[0] < 2:
+        msg = f"{path}: dataset '{key}' is empty ({arr.shape[0]} samples; needs >= 2)"
+        raise MitPushError(msg)
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.sum(~np.all(np.isfinite(arr), axis=1)))
+        msg = f"{path}: dataset '{key}' has {bad} rows with NaN/inf values"
+        raise MitPushError(msg)
+    order = np.argsort(arr[:, 0], kind="stable")
+    arr = arr[order]
+    keep = np.concatenate([[True], np.diff(arr[:, 0]) > 0.0])
+    arr = arr[keep]
+    if arr.shape[0] < 2:
+        msg = f"{path}: dataset '{key}' has fewer than 2 distinct time stamps"
+        raise MitPushError(msg)
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+def load_push(path: str | Path) -> RawPush:
+    """Read and validate one push file.
+
+    Raises:
+        MitPushError: bad name, unreadable HDF5, missing dataset, wrong shape, empty stream,
+            non-finite values.
+    """
+    import h5py
+
+    p = Path(path)
+    info = parse_push_name(p)
+    streams: dict[str, FloatArray] = {}
+    try:
+        with h5py.File(p, "r") as h5:
+            for key in STREAMS:
+                if key not in h5:
+                    msg = (
+                        f"{p}: missing dataset '{key}' (a push file needs "
+                        f"{', '.join(STREAMS)}; it has {', '.join(sorted(h5.keys())) or 'none'})"
+                    )
+                    raise MitPushError(msg)
+                try:
+                    streams[key] = np.asarray(h5[key][()], dtype=np.float64)
+                except (TypeError, ValueError) as err:
+                    msg = f"{p}: dataset '{key}' is not a numeric array: {err}"
+                    raise MitPushError(msg) from err
+    except OSError as err:
+        msg = f"{p}: cannot read HDF5 file: {err}".splitlines()[0]
+        raise MitPushError(msg) from err
+    tip, obj, ft = (_clean_stream(p, k, streams[k]) for k in STREAMS)
+    return RawPush(p, info, tip, obj, ft)
+
+
+# ------------------------------------------------------------------------------- outlines
+@dataclass(frozen=True)
+class Outline:
+    """Body-frame outline of a shape.
+
+    vertices: strictly convex hull, counter-clockwise, about the centroid (m) - the
+    scenario's ``vertices``. ordered: every vertex of the file, x-mirrored (counter-clockwise,
+    file order) and shifted by the same centroid - used for the side/position convention of
+    the file names. centroid: centroid (m) of the x-mirrored file outline in its own frame.
+    """
+
+    shape: str
+    vertices: FloatArray
+    ordered: FloatArray
+    centroid: tuple[float, float]
+
+
+def find_shapes_dir(h5_path: str | Path) -> Path | None:
+    """The dataset's ``shapes/`` directory: the nearest ``shapes`` in the file's ancestors."""
+    for parent in Path(h5_path).resolve().parents:
+        cand = parent / "shapes"
+        if cand.is_dir():
+            return cand
+    return None
+
+
+def _convex_hull(points: FloatArray) -> FloatArray:
+    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
+    pts = sorted({(float(x), float(y)) for x, y in points})
+    scale = max(math.hypot(x, y) for x, y in pts)
+    tol = 1e-10 * scale * scale
+
+    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple[float, float]] = []
+    for q in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= tol:
+            lower.pop()
+        lower.append(q)
+    upper: list[tuple[float, float]] = []
+    for q in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], q) <= tol:
+            upper.pop()
+        upper.append(q)
+    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
+
+
+def _area_centroid(v: FloatArray) -> tuple[float, float, float]:
+    x, y = v[:, 0], v[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    area = 0.5 * float(np.sum(cr))
+    cx = float(np.sum((x + xn) * cr)) / (6.0 * area)
+    cy = float(np.sum((y + yn) * cr)) / (6.0 * area)
+    return area, cx, cy
+
+
+def load_outline(shape: str, shapes_dir: str | Path) -> Outline:
+    """Load ``<shapes_dir>/<shape>_ext.npy`` and express it in the body frame.
+
+    Raises:
+        MitPushError: missing or malformed outline file.
+    """
+    path = Path(shapes_dir) / f"{shape}_ext.npy"
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        msg = f"{path}: cannot load the outline of shape {shape!r}: {err}".splitlines()[0]
+        raise MitPushError(msg) from err
+    if raw.ndim != 2 or raw.shape[1] != 2 or raw.shape[0] < 3 or not np.all(np.isfinite(raw)):
+        msg = f"{path}: outline must be a finite (n >= 3, 2) array, got shape {raw.shape}"
+        raise MitPushError(msg)
+    mirrored = np.asarray(raw, dtype=np.float64) * np.array([-1.0, 1.0])
+    area, cx, cy = _area_centroid(mirrored)
+    if area < 0.0:  # keep counter-clockwise whatever the file's winding
+        mirrored = mirrored[::-1]
+    if abs(area) <= 0.0:
+        msg = f"{path}: outline is degenerate (zero area)"
+        raise MitPushError(msg)
+    hull = _convex_hull(mirrored)
+    if len(hull) < 3:
+        msg = f"{path}: outline is degenerate (fewer than 3 hull vertices)"
+        raise MitPushError(msg)
+    c = np.array([cx, cy])
+    return Outline(shape, hull - c, mirrored - c, (cx, cy))
+
+
+# ------------------------------------------------------------------------------- geometry
+def signed_distance(vertices: FloatArray, points: npt.ArrayLike) -> FloatArray:
+    """Signed distance (m, > 0 outside) of points (m, 2) to a convex CCW polygon (n, 2)."""
+    pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    a = vertices
+    e = np.roll(vertices, -1, axis=0) - a
+    ap = pts[:, None, :] - a[None]
+    u = np.clip(np.einsum("mnk,nk->mn", ap, e) / np.einsum("nk,nk->n", e, e), 0.0, 1.0)
+    d = np.linalg.norm(ap - u[..., None] * e[None], axis=-1).min(axis=1)
+    outside = np.any(e[None, :, 0] * ap[..., 1] - e[None, :, 1] * ap[..., 0] < 0.0, axis=1)
+    out: FloatArray = np.where(outside, d, -d)
+    return out
+
+
+def to_body(pose: npt.ArrayLike, points: npt.ArrayLike) -> FloatArray:
+    """World points (T, 2) in the body frames of poses (T, 3) [x, y, yaw] -> (T, 2)."""
+    q = np.atleast_2d(np.asarray(pose, dtype=np.float64))
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64)) - q[:, :2]
+    c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
+    return np.stack([c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]], axis=-1)
+
+
+def expected_contact(
+    outline: Outline, side: int, position: float, radius: float = PUSHER_RADIUS
+) -> tuple[FloatArray, FloatArray]:
+    """Pusher centre at first contact named by the file (side i, position s), body frame.
+
+    Polygons (<= 8 vertices): the point at fraction s from body vertex i to vertex i + 1 of the
+    file's (mirrored, counter-clockwise) order; smooth outlines: the point at fraction s of the
+    perimeter from vertex 0. Returns (pusher centre = point + radius * outward normal, normal).
+
+    Raises:
+        MitPushError: side index out of range or position outside [0, 1].
+    """
+    w = outline.ordered
+    n = len(w)
+    if not 0.0 <= position <= 1.0:
+        msg = f"contact position s={position} of shape {outline.shape} is outside [0, 1]"
+        raise MitPushError(msg)
+    if n > 8:
+        seg = np.linalg.norm(np.roll(w, -1, axis=0) - w, axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        target = position * cum[-1]
+        k = min(int(np.searchsorted(cum, target, side="right")) - 1, n - 1)
+        u = (target - cum[k]) / seg[k]
+    else:
+        if side >= n:
+            msg = f"side index i={side} out of range for shape {outline.shape} ({n} sides)"
+            raise MitPushError(msg)
+        k, u = side, position
+    a, b = w[k], w[(k + 1) % n]
+    e = b - a
+    normal = np.array([e[1], -e[0]]) / float(np.linalg.norm(e))
+    return a + u * e + radius * normal, normal
+
+
+# ------------------------------------------------------------------------------- resampling
+@dataclass(frozen=True)
+class ImportConfig:
+    """Importer settings.
+
+    dt: model step and resampling period, s. noise_position / noise_yaw: std of the Gaussian
+    noise added to the observed pose (m, rad); seed: base seed of that noise (combined with
+    the file name, so each file gets its own reproducible stream). contact_threshold: N.
+    pusher_candidates / surface_candidates: friction candidates (uniform prior).
+    position_floor / yaw_floor: observation noise std written to the scenario when no noise
+    is added, m / rad: the alignment error (median 0.3-0.8 mm) dominates the Vicon noise; with
+    1 mm / 0.01 rad ``dbcslam replay`` (100 particles) on the hex t=0.349 push rejects no
+    pose, with 0.5 mm / 0.005 rad it rejects 17 of 105 as outliers (ESS 1.5).
+    """
+
+    dt: float = 0.01
+    noise_position: float = 0.0
+    noise_yaw: float = 0.0
+    seed: int = 0
+    contact_threshold: float = CONTACT_THRESHOLD
+    pusher_candidates: tuple[float, ...] = (0.1, 0.2, 0.3)
+    surface_candidates: tuple[float, ...] = (0.1, 0.2, 0.3)
+    position_floor: float = 0.001
+    yaw_floor: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.dt) and 0.0 < self.dt <= 0.1):
+            msg = f"dt must be in (0, 0.1] s, got {self.dt}"
+            raise MitPushError(msg)
+        for name in ("noise_position", "noise_yaw", "contact_threshold"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                msg = f"{name} must be a finite value >= 0, got {v}"
+                raise MitPushError(msg)
+        for name in ("pusher_candidates", "surface_candidates"):
+            cands = getattr(self, name)
+            if not cands or any(not (math.isfinite(c) and c >= 0.0) for c in cands):
+                msg = f"{name} must be a non-empty list of coefficients >= 0, got {list(cands)}"
+                raise MitPushError(msg)
+
+    @property
+    def position_std(self) -> float:
+        """Observation noise std of the position written to the scenario, m."""
+        return self.noise_position if self.noise_position > 0.0 else self.position_floor
+
+    @property
+    def yaw_std(self) -> float:
+        """Observation noise std of the yaw written to the scenario, rad."""
+        return self.noise_yaw if self.noise_yaw > 0.0 else self.yaw_floor
+
+
+@dataclass(frozen=True)
+class PushSeries:
+    """A push on one clock.
+
+    stamps_ns: (T,) Unix time, ns. tip: (T, 2) pusher centre, world, m. pose: (T, 3) clean
+    body pose (aligned Vicon) [x, y, yaw], yaw continuous (unwrapped). observed: (T, 3) pose
+    with the added noise. force: (T, 3) F/T [fx, fy, tau_z] (force on the pusher, world axes,
+    N, N m; mean over each step), or None when the stream is stale. contact: (T,) bool.
+    contact_source: ``ft`` or ``geometry``. start_offsets: first stamp of each stream minus
+    the earliest one, s.
+    """
+
+    raw: RawPush
+    outline: Outline
+    alignment: ShapeAlignment
+    dt: float
+    stamps_ns: npt.NDArray[np.int64]
+    tip: FloatArray
+    pose: FloatArray
+    observed: FloatArray
+    force: FloatArray | None
+    contact: npt.NDArray[np.bool_]
+    contact_source: str
+    start_offsets: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def t(self) -> FloatArray:
+        """Seconds since the first step."""
+        out: FloatArray = (self.stamps_ns - self.stamps_ns[0]).astype(np.float64) * 1e-9
+        return out
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.size)
+
+
+def ft_is_stale(ft: FloatArray) -> bool:
+    """True when the F/T stream holds fewer distinct readings than half its samples."""
+    distinct = int(np.unique(ft[:, 1:], axis=0).shape[0])
+    return bool(distinct < STALE_FT_FRACTION * ft.shape[0])
+
+
+def geometric_contact(
+    pose: FloatArray, tip: FloatArray, outline: Outline, dt: float
+) -> npt.NDArray[np.bool_]:
+    """Contact flag from geometry: tip-outline gap within GEOMETRIC_CONTACT_TOL of its bias.
+
+    The gap (distance - radius) while the object moves is in contact by definition; its
+    median (clipped to +-2 mm) is the push's calibration bias (0.0-1.8 mm in the data: the
+    alignment differs slightly between recording sessions). Without motion the bias is 0.
+    """
+    gap = signed_distance(outline.vertices, to_body(pose, tip)) - PUSHER_RADIUS
+    speed = np.linalg.norm(np.gradient(pose[:, :2], dt, axis=0), axis=1)
+    moving = speed > MOVING_SPEED
+    bias = float(np.clip(np.median(gap[moving]), -0.002, 0.002)) if moving.any() else 0.0
+    out: npt.NDArray[np.bool_] = gap - bias < GEOMETRIC_CONTACT_TOL
+    return out
+
+
+def _window_mean(t: FloatArray, values: FloatArray, grid: FloatArray, dt: float) -> FloatArray:
+    """Mean of the samples in [g - dt/2, g + dt/2) per grid time; interpolated where empty."""
+    csum = np.vstack([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
+    lo = np.searchsorted(t, grid - 0.5 * dt, side="left")
+    hi = np.searchsorted(t, grid + 0.5 * dt, side="left")
+    count = (hi - lo)[:, None]
+    interp = np.stack([np.interp(grid, t, values[:, j]) for j in range(values.shape[1])], -1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (csum[hi] - csum[lo]) / count
+    return np.where(count > 0, mean, interp)
+
+
+def _wrap(a: FloatArray) -> FloatArray:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def resample_push(raw: RawPush, outline: Outline, config: ImportConfig) -> PushSeries:
+    """Resample a push onto one clock of step ``config.dt``, align it and add noise.
+
+    Positions are interpolated linearly, yaw after unwrapping; the F/T force is averaged over
+    each step. The clock covers the interval where all three streams have data.
+
+    Raises:
+        MitPushError: the streams do not overlap for at least two steps.
+    """
+    t_ref = min(raw.tip[0, 0], raw.obj[0, 0], raw.ft[0, 0])
+    tt, to, tf = (a[:, 0] - t_ref for a in (raw.tip, raw.obj, raw.ft))
+    start = max(tt[0], to[0], tf[0])
+    end = min(tt[-1], to[-1], tf[-1])
+    n_steps = math.floor((end - start) / config.dt + 1e-9) + 1
+    if n_steps < 2:
+        msg = (
+            f"{raw.path}: the tip, object and F/T streams overlap for only "
+            f"{max(end - start, 0.0):.4f} s (needs at least 2 steps of {config.dt} s)"
+        )
+        raise MitPushError(msg)
+    grid = start + config.dt * np.arange(n_steps)
+    t0_ns = round((t_ref + start) * 1e9)
+    dt_ns = round(config.dt * 1e9)
+    stamps = t0_ns + dt_ns * np.arange(n_steps, dtype=np.int64)
+
+    tip = np.stack([np.interp(grid, tt, raw.tip[:, j]) for j in (1, 2)], axis=-1)
+    vic = np.stack(
+        [
+            np.interp(grid, to, raw.obj[:, 1]),
+            np.interp(grid, to, raw.obj[:, 2]),
+            np.interp(grid, to, np.unwrap(raw.obj[:, 3])),
+        ],
+        axis=-1,
+    )
+    align = ALIGNMENTS[raw.info.shape]
+    c, s = np.cos(vic[:, 2]), np.sin(vic[:, 2])
+    ox, oy = align.offset
+    yaw = vic[:, 2] + align.yaw_offset
+    cx, cy = outline.centroid
+    cb, sb = np.cos(yaw), np.sin(yaw)
+    pose = np.stack(
+        [
+            vic[:, 0] + c * ox - s * oy + cb * cx - sb * cy,
+            vic[:, 1] + s * ox + c * oy + sb * cx + cb * cy,
+            yaw,
+        ],
+        axis=-1,
+    )
+
+    rng = np.random.default_rng([config.seed, zlib.crc32(raw.path.name.encode("utf-8"))])
+    noise = np.column_stack(
+        [
+            rng.normal(0.0, 1.0, (n_steps, 2)) * config.noise_position,
+            rng.normal(0.0, 1.0, n_steps) * config.noise_yaw,
+        ]
+    )
+    observed = pose + noise
+
+    stale = ft_is_stale(raw.ft)
+    force: FloatArray | None = None
+    if stale:
+        contact = geometric_contact(pose, tip, outline, config.dt)
+        source = "geometry"
+    else:
+        force = _window_mean(tf, raw.ft[:, 1:], grid, config.dt)
+        contact = np.hypot(force[:, 0], force[:, 1]) > config.contact_threshold
+        source = "ft"
+    offsets = {
+        "tip_pose": float(tt[0]),
+        "object_pose": float(to[0]),
+        "ft_wrench": float(tf[0]),
+    }
+    return PushSeries(
+        raw=raw,
+        outline=outline,
+        alignment=align,
+        dt=config.dt,
+        stamps_ns=stamps,
+        tip=tip,
+        pose=pose,
+        observed=observed,
+        force=force,
+        contact=np.asarray(contact, dtype=np.bool_),
+        contact_source=source,
+        start_offsets=offsets,
+    )
+
+
+# ------------------------------------------------------------------------------- checks
+@dataclass(frozen=True)
+class AlignmentCheck:
+    """How well the aligned outline explains the pusher tip (m).
+
+    onset_index: step where the object has moved ONSET_DISPLACEMENT (None: it never moves).
+    onset_error: distance of the tip at onset from the contact point the file name gives.
+    onset_gap: tip-to-outline distance minus radius at onset. moving_gap: median
+    |distance - radius| over the steps where the object moves (> 3 mm/s).
+    """
+
+    onset_index: int | None
+    onset_error: float
+    onset_gap: float
+    moving_gap: float
+
+
+def alignment_check(series: PushSeries, radius: float = PUSHER_RADIUS) -> AlignmentCheck:
+    """Compare the aligned outline with the tip trajectory (first contact and while pushing)."""
+    pose, tip = series.pose, series.tip
+    body_tip = to_body(pose, tip)
+    gap = signed_distance(series.outline.vertices, body_tip) - radius
+    disp = np.linalg.norm(pose[:, :2] - pose[0, :2], axis=1)
+    moved = disp > ONSET_DISPLACEMENT
+    onset = int(np.argmax(moved)) if bool(np.any(moved)) else None
+    info = series.raw.info
+    expected, _ = expected_contact(series.outline, info.side, info.position, radius)
+    if onset is None:
+        err = float("nan")
+        onset_gap = float("nan")
+    else:
+        err = float(np.linalg.norm(body_tip[onset] - expected))
+        onset_gap = float(gap[onset])
+    speed = np.linalg.norm(np.gradient(pose[:, :2], series.dt, axis=0), axis=1)
+    moving = speed > MOVING_SPEED
+    moving_gap = float(np.median(np.abs(gap[moving]))) if bool(np.any(moving)) else float("nan")
+    return AlignmentCheck(onset, err, onset_gap, moving_gap)
+
+
+def push_files(paths: Sequence[str | Path]) -> list[Path]:
+    """The ``.h5`` files named by arguments (files, or directories searched recursively).
+
+    Raises:
+        MitPushError: a path does not exist or a directory holds no ``.h5`` file.
+    """
+    out: list[Path] = []
+    for arg in paths:
+        p = Path(arg)
+        if p.is_dir():
+            found = sorted(p.rglob("*.h5"))
+            if not found:
+                msg = f"{p}: directory holds no .h5 push file"
+                raise MitPushError(msg)
+            out.extend(found)
+        elif p.is_file():
+            out.append(p)
+        else:
+            msg = f"{p}: no such file or directory"
+            raise MitPushError(msg)
+    return out

@@ -1,0 +1,245 @@
+"""Input synchronisation of dbcslam_ros.session.FilterSession.
+
+Most tests replace the core filter by a recorder of the calls it gets, so the hold,
+interpolation, gap and reset rules are checked exactly; one test runs the real filter.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+
+from dbcslam_core.rbpf import FilterConfig, FilterInput
+from dbcslam_core.scenario import Scenario, edge_scenario, gripper_scenario
+from dbcslam_ros import session as session_mod
+from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
+from dbcslam_ros.session import FilterSession
+
+MS = 1_000_000  # ns
+T0 = 5_000_000_000  # an arbitrary start stamp (ns)
+
+
+class RecordingFilter:
+    """Stands in for DbcSlamFilter: records initialize/step calls, returns a dummy estimate."""
+
+    instances: ClassVar[list[RecordingFilter]] = []
+
+    def __init__(self, scenario: Scenario, config: Any, rng: Any, extensions: Any = ()) -> None:
+        self.scenario = scenario
+        self.inits: list[dict[str, Any]] = []
+        self.steps: list[tuple[Any, FilterInput]] = []
+        RecordingFilter.instances.append(self)
+
+    def initialize(self, q_mean: Any, q_std: Any, joints: Any = None) -> None:
+        self.inits.append({"q": list(q_mean), "std": list(q_std), "joints": joints})
+
+    def step(self, observation: Any, inputs: FilterInput) -> Any:
+        self.steps.append((observation, inputs))
+        return f"estimate{len(self.steps)}"
+
+
+@pytest.fixture
+def fake_filter(monkeypatch: pytest.MonkeyPatch) -> type[RecordingFilter]:
+    RecordingFilter.instances = []
+    monkeypatch.setattr(session_mod, "DbcSlamFilter", RecordingFilter)
+    return RecordingFilter
+
+
+def _session(scenario: Scenario | None = None, **kw: Any) -> FilterSession:
+    sc = scenario or edge_scenario()
+    return FilterSession(sc, FilterConfig.preset(sc.kind, particles=10), **kw)
+
+
+def pose(t_ms: float, x: float = 0.0, y: float = 0.01, yaw: float = 0.0) -> PoseReading:
+    return PoseReading(T0 + round(t_ms * MS), x, y, yaw)
+
+
+def wrench(t_ms: float, fx: float) -> WrenchReading:
+    return WrenchReading(T0 + round(t_ms * MS), fx, 0.0, 0.0)
+
+
+def joints(t_ms: float, *pos: float) -> JointReading:
+    return JointReading(T0 + round(t_ms * MS), tuple(pos))
+
+
+def test_first_pose_initialises_then_one_estimate_per_pose(fake_filter: Any) -> None:
+    s = _session()
+    assert s.add_pose(pose(0.0, x=0.3, y=0.02)) == []
+    flt = fake_filter.instances[-1]
+    assert flt.inits[0]["q"] == [0.3, 0.02]  # point mass: (x, y)
+    out = s.add_pose(pose(10.0))
+    assert len(out) == 1 and out[0].stamp_ns == T0 + 10 * MS
+    assert out[0].estimate == "estimate1" and out[0].model_steps == 1
+    obs, _ = flt.steps[0]
+    assert obs.yaw is None  # a point mass has no observed yaw
+
+
+def test_polygon_gets_the_observed_yaw(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    s.add_joints(joints(0.0, -0.05, 0.05))
+    s.add_pose(pose(0.0, yaw=0.3))
+    assert fake_filter.instances[-1].inits[0]["q"] == [0.0, 0.01, 0.3]
+    s.add_pose(pose(10.0, yaw=0.4))
+    obs, _ = fake_filter.instances[-1].steps[0]
+    assert obs.yaw == pytest.approx(0.4)
+
+
+def test_wrench_is_held_from_the_step_start(fake_filter: Any) -> None:
+    s = _session()
+    s.add_pose(pose(0.0))
+    s.add_wrench(wrench(0.0, 1.0))
+    s.add_wrench(wrench(5.0, 2.0))  # arrives during the step: not this step's input
+    s.add_wrench(wrench(10.0, 3.0))
+    s.add_pose(pose(10.0))
+    s.add_pose(pose(20.0))
+    steps = fake_filter.instances[-1].steps
+    assert steps[0][1].wrench == (1.0, 0.0, 0.0)
+    assert steps[1][1].wrench == (3.0, 0.0, 0.0)
+
+
+def test_no_wrench_yet_means_zero_input(fake_filter: Any) -> None:
+    s = _session()
+    s.add_pose(pose(0.0))
+    s.add_wrench(wrench(10.0, 5.0))  # stamped at the step's end: too late for it
+    s.add_pose(pose(10.0))
+    assert fake_filter.instances[-1].steps[0][1].wrench == (0.0, 0.0, 0.0)
+
+
+def test_joints_interpolated_to_the_pose_stamp_and_held_after(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    s.add_joints(joints(0.0, 0.0, 0.4))
+    s.add_joints(joints(20.0, 0.2, 0.0))
+    s.add_pose(pose(0.0))
+    assert fake_filter.instances[-1].inits[0]["joints"] == (0.0, 0.4)
+    s.add_pose(pose(10.0))
+    s.add_pose(pose(30.0 - 0.0))  # after the last reading: held
+    steps = fake_filter.instances[-1].steps
+    np.testing.assert_allclose(steps[0][1].joints, (0.1, 0.2))
+    np.testing.assert_allclose(steps[-1][1].joints, (0.2, 0.0))
+
+
+def test_late_joint_message_is_sorted_in(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    s.add_joints(joints(0.0, 0.0, 0.0))
+    s.add_joints(joints(20.0, 0.2, 0.2))
+    s.add_joints(joints(10.0, 1.0, 1.0))  # arrives late, belongs in the middle
+    s.add_pose(pose(0.0))
+    s.add_pose(pose(10.0))
+    np.testing.assert_allclose(fake_filter.instances[-1].steps[0][1].joints, (1.0, 1.0))
+
+
+def test_no_joints_is_rejected_for_a_jawed_scenario(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    with pytest.raises(InputRejected) as info:
+        s.add_pose(pose(0.0))
+    assert info.value.reason == "no_joints"
+    assert s.rejected["no_joints"] == 1
+    s.add_joints(joints(0.0, 0.0, 0.0))
+    assert s.add_pose(pose(0.0)) == []  # usable afterwards
+
+
+@pytest.mark.parametrize("dt_ms", [0.0, 4.0, -10.0, -400.0])
+def test_stamp_not_later_is_rejected_and_counted(fake_filter: Any, dt_ms: float) -> None:
+    s = _session()
+    s.add_pose(pose(0.0))
+    s.add_pose(pose(10.0))
+    with pytest.raises(InputRejected) as info:
+        s.add_pose(pose(10.0 + dt_ms))
+    assert info.value.reason == "stamp_order"
+    assert s.rejected["stamp_order"] == 1
+    assert s.resets == 0
+    assert len(s.add_pose(pose(20.0))) == 1  # still usable
+
+
+def test_jump_back_in_time_resets_cleanly(fake_filter: Any) -> None:
+    s = _session(gripper_scenario(), reset_after_s=0.5)
+    for k in range(100):  # one second of data
+        s.add_joints(joints(10.0 * k, 0.001 * k, 0.0))
+        s.add_pose(pose(10.0 * k))
+    old = fake_filter.instances[-1]
+    # the bag loops: the first inputs of the new time line arrive before its first pose
+    s.add_joints(joints(0.0, -0.5, 0.5))
+    assert s.add_pose(pose(0.0)) == []
+    assert s.resets == 1
+    new = fake_filter.instances[-1]
+    assert new is not old
+    assert new.inits[0]["joints"] == (-0.5, 0.5)  # the new line's joints, not the old ones
+    assert len(s.add_pose(pose(10.0))) == 1
+    assert s.rejected["stamp_order"] == 0
+
+
+def test_multi_step_gap_predicts_then_updates(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    for k in range(5):
+        s.add_joints(joints(10.0 * k, 0.01 * k, 0.0))
+        s.add_wrench(wrench(10.0 * k, float(k)))
+    s.add_pose(pose(0.0))
+    out = s.add_pose(pose(30.0))  # two observations missing
+    assert out[0].model_steps == 3
+    steps = fake_filter.instances[-1].steps
+    assert [obs is None for obs, _ in steps] == [True, True, False]
+    assert [inp.wrench[0] for _, inp in steps] == [0.0, 1.0, 2.0]
+    np.testing.assert_allclose([inp.joints[0] for _, inp in steps], [0.01, 0.02, 0.03])
+    assert s.gap_steps == 2 and s.skipped_steps == 0 and s.steps == 3
+
+
+def test_catch_up_runs_the_last_steps_of_the_gap(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    for k in range(7):
+        s.add_joints(joints(10.0 * k, 0.01 * k, 0.0))
+        s.add_wrench(wrench(10.0 * k, float(k)))
+    s.add_pose(pose(0.0))
+    out = s.add_pose(pose(50.0), max_steps=2)
+    assert out[0].model_steps == 2
+    steps = fake_filter.instances[-1].steps
+    assert [inp.wrench[0] for _, inp in steps] == [3.0, 4.0]  # steps (30, 40], (40, 50]
+    np.testing.assert_allclose(steps[0][1].joints_start, (0.03, 0.0))  # no jaw teleport
+    assert steps[1][1].joints_start is None
+    assert s.skipped_steps == 3
+
+
+def test_long_gap_reinitialises(fake_filter: Any) -> None:
+    s = _session(max_gap_s=0.2)
+    s.add_pose(pose(0.0))
+    s.add_pose(pose(10.0))
+    assert s.add_pose(pose(500.0)) == []
+    assert s.resets == 1
+    assert len(fake_filter.instances) == 2
+
+
+def test_long_gap_in_catch_up_holds_instead_of_resetting(fake_filter: Any) -> None:
+    s = _session(max_gap_s=0.2)
+    s.add_pose(pose(0.0))
+    out = s.add_pose(pose(500.0), max_steps=2)
+    assert out[0].model_steps == 2 and s.resets == 0
+    assert s.skipped_steps == 48
+
+
+def test_counters_survive_reset(fake_filter: Any) -> None:
+    s = _session()
+    s.reject("nan")
+    s.reset()
+    assert s.rejected["nan"] == 1 and s.resets == 1
+
+
+def test_real_filter_tracks_synthetic_edge() -> None:
+    from dbcslam_core.synthetic import edge_trajectory
+
+    traj = edge_trajectory(0, duration=0.5)
+    sc = traj.scenario
+    s = FilterSession(sc, FilterConfig.preset("edge", particles=50), seed=1)
+    errs = []
+    for k in range(traj.n_steps):
+        stamp = T0 + k * 10 * MS
+        if k > 0:
+            s.add_wrench(WrenchReading(stamp - 10 * MS, *traj.u[k - 1], 0.0))
+        out = s.add_pose(PoseReading(stamp, float(traj.obs[k, 0]), float(traj.obs[k, 1]), 0.0))
+        for res in out:
+            assert np.all(np.isfinite(res.estimate.pose))
+            errs.append(np.hypot(*(res.estimate.pose[:2] - traj.q[k])))
+    assert len(errs) == traj.n_steps - 1
+    assert float(np.mean(errs)) < 2.0 * sc.noise.position
+    px, w = s.particles()
+    assert px.shape == (50, 2) and w.sum() == pytest.approx(1.0)
