@@ -163,6 +163,28 @@ def solve_reduced(
     lt = np.zeros((*lead, n_c))
     dv = np.zeros((*lead, nv))
     response = np.broadcast_to(np.eye(nv), (*lead, nv, nv))
+    rows_act = np.any(mdb != Mode.SEPARATED, axis=-1)  # entries needing a solve
+    if n_a and not rows_act.all():
+        # all-separated entries keep v' = v_free (identity response): solve only the others
+        sel = np.nonzero(rows_act)
+        sub = _solve_active(
+            mdb[sel][..., act],
+            np.broadcast_to(vf, (*lead, nv))[sel],
+            np.broadcast_to(im, (*lead, nv))[sel],
+            np.broadcast_to(jn_a, (*lead, n_c, nv))[sel][..., act, :],
+            np.broadcast_to(jt_a, (*lead, n_c, nv))[sel][..., act, :],
+            np.broadcast_to(an, (*lead, n_c))[sel][..., act],
+            np.broadcast_to(at, (*lead, n_c))[sel][..., act],
+            np.broadcast_to(mu_a, (*lead, n_c))[sel][..., act],
+            eps_rel,
+        )
+        ln_s, lt_s, dv_s, resp_s = sub
+        ln[sel + (slice(None),)] = _scatter_cols(ln_s, act, n_c)
+        lt[sel + (slice(None),)] = _scatter_cols(lt_s, act, n_c)
+        dv[sel] = dv_s
+        response = np.array(response, copy=True)
+        response[sel] = resp_s
+        n_a = 0  # done
     if n_a:
         w = np.concatenate([jn_a[..., act, :], jt_a[..., act, :]], axis=-2)  # (.., 2Ca, nv)
         wm = w * im[..., None, :]
@@ -250,6 +272,58 @@ def solve_reduced(
         score=np.asarray(score, dtype=np.float64),
         response=np.asarray(response, dtype=np.float64),
     )
+
+
+def _scatter_cols(x: FloatArray, cols: IntArray, n: int) -> FloatArray:
+    out = np.zeros((*x.shape[:-1], n))
+    out[..., cols] = x
+    return out
+
+
+def _solve_active(
+    m_a: IntArray,
+    vf: FloatArray,
+    im: FloatArray,
+    jn_act: FloatArray,
+    jt_act: FloatArray,
+    an_b: FloatArray,
+    at_b: FloatArray,
+    mu_act: FloatArray,
+    eps_rel: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Impulses, dv and response of the reduced system on the active contacts (rows (M,))."""
+    n_a = m_a.shape[-1]
+    nv = vf.shape[-1]
+    w = np.concatenate([jn_act, jt_act], axis=-2)  # (M, 2Ca, nv)
+    d = (w * im[..., None, :]) @ np.swapaxes(w, -1, -2)
+    diag_mean = np.mean(np.diagonal(d, axis1=-2, axis2=-1), axis=-1)
+    eps = eps_rel * np.maximum(diag_mean, 1e-300)
+    eye = np.eye(2 * n_a)
+    sep = m_a == Mode.SEPARATED
+    stick = m_a == Mode.STICKING
+    pos = m_a == Mode.SLIDING_POS
+    neg = m_a == Mode.SLIDING_NEG
+    vel_row = np.concatenate([~sep, stick], axis=-1)
+    amat = np.where(vel_row[..., None], d + eps[..., None, None] * eye, eye)
+    coup = np.where(pos, mu_act, np.where(neg, -mu_act, 0.0))
+    ar = np.arange(n_a)
+    amat[..., n_a + ar, ar] += coup
+    rhs = np.concatenate([np.where(~sep, -an_b, 0.0), np.where(stick, -at_b, 0.0)], -1)
+    sens = np.concatenate(
+        [np.where(~sep[..., None], -jn_act, 0.0), np.where(stick[..., None], -jt_act, 0.0)],
+        axis=-2,
+    )
+    rhs_all = np.concatenate([rhs[..., None], sens], axis=-1)
+    try:
+        sol_all = np.linalg.solve(amat, rhs_all)
+    except np.linalg.LinAlgError as err:
+        msg = f"reduced dynamics system is singular for {m_a.shape[0]} assignments"
+        raise SolverError(msg) from err
+    lam = sol_all[..., 0]
+    wt_sol = np.swapaxes(w, -1, -2) @ sol_all
+    dv = im * wt_sol[..., 0]
+    response = np.eye(nv) + im[..., :, None] * wt_sol[..., 1:]
+    return lam[..., :n_a], lam[..., n_a:], dv, response
 
 
 # ---------------------------------------------------------------------------------------------

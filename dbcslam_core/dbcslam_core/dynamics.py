@@ -28,7 +28,7 @@ the single linearisation at the start velocity (the filter's linear model).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Union
 
 import numpy as np
@@ -512,27 +512,66 @@ class PlanarModel:
         r = self._step_once(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=None)
         if mus is None:
             return r
+        if self.support_iterations == 1:
+            return r
         # Fixed point v' = g(v_lin) of the re-linearisation, Anderson(1)-accelerated (secant
-        # on the residual g(x) - x, per batch element); plain iteration when it stalls.
-        x0 = np.asarray(state.v, dtype=np.float64)
-        g0 = r.v
-        x1 = g0
-        res0 = g0 - np.broadcast_to(x0, g0.shape)
+        # on the residual g(x) - x), per batch element: converged elements drop out.
+        lead = r.v.shape[:-1]
+        n = int(np.prod(lead))
+        nv, nc = self.nq, self.nc
+
+        def flat(x: ArrayLike | None, width: int) -> F64 | None:
+            if x is None:
+                return None
+            a = np.asarray(x, dtype=np.float64)
+            return np.broadcast_to(a, (*lead, width)).reshape(n, width)
+
+        n_env = len(self.scenario.joints)
+        q_f = flat(state.q, nv)
+        v_f = flat(state.v, nv)
+        u_f = flat(u, nv)
+        e0_f = flat(np.zeros(n_env) if env is None else env, n_env)
+        e1_f = flat(env_next if env_next is not None else env, n_env) if env is not None else e0_f
+        mp_f = flat(mu_pair, len(self.scenario.friction.pairs))
+        mu_f: MuSpec | None = mu
+        if mu is not None and not callable(mu):
+            mu_f = flat(np.broadcast_to(np.asarray(mu, dtype=np.float64), (*lead, nc)), nc)
+        mus_f = np.broadcast_to(mus, lead).reshape(n)
+        assert q_f is not None and v_f is not None and u_f is not None and e0_f is not None
+        out = {f.name: np.array(getattr(r, f.name)).reshape(n, -1) for f in fields(StepResult)}
+        g0 = out["v"].copy()
+        x1 = g0.copy()
+        res0 = g0 - v_f
+        active = np.arange(n)
         for _ in range(self.support_iterations - 1):
-            r = self._step_once(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=x1)
-            g1 = r.v
-            res1 = g1 - x1
-            if float(np.max(np.abs(res1), initial=0.0)) <= self.support_tol:
-                break
-            dr = res1 - res0
-            den = np.sum(dr * dr, axis=-1, keepdims=True)
-            gamma = np.where(
-                den > 0.0, np.sum(res1 * dr, axis=-1, keepdims=True) / np.maximum(den, 1e-300), 0
+            rs = self._step_once(
+                State(q_f[active], v_f[active]),
+                u_f[active],
+                e0_f[active],
+                None if e1_f is None else e1_f[active],
+                mu=mu_f[active] if isinstance(mu_f, np.ndarray) else mu_f,
+                mu_pair=None if mp_f is None else mp_f[active],
+                mus=mus_f[active],
+                v_lin=x1[active],
             )
-            gamma = np.clip(gamma, -10.0, 10.0)
-            x2 = g1 - gamma * (g1 - g0)
-            g0, res0, x1 = g1, res1, x2
-        return r
+            for f in fields(StepResult):
+                out[f.name][active] = getattr(rs, f.name).reshape(len(active), -1)
+            g1 = rs.v
+            res1 = g1 - x1[active]
+            done = np.max(np.abs(res1), axis=-1) <= self.support_tol
+            dr = res1 - res0[active]
+            den = np.sum(dr * dr, axis=-1, keepdims=True)
+            num = np.sum(res1 * dr, axis=-1, keepdims=True)
+            gamma = np.clip(np.where(den > 0.0, num / np.maximum(den, 1e-300), 0.0), -10.0, 10.0)
+            x1[active] = g1 - gamma * (g1 - g0[active])
+            g0[active] = g1
+            res0[active] = res1
+            active = active[~done]
+            if active.size == 0:
+                break
+        shaped = {k: val.reshape(*lead, -1) for k, val in out.items()}
+        shaped["modes"] = shaped["modes"].astype(np.int64)
+        return StepResult(**shaped)
 
     def _step_once(
         self,

@@ -453,26 +453,33 @@ class DbcSlamFilter:
         with np.errstate(divide="ignore"):
             lp = np.log(gathered).sum(axis=-1)
         lp = np.where(hyp.valid[:, :, None], lp, -np.inf)
-        # 4. reduced dynamics for all (particle, hypothesis, friction) triples
+        # 4. reduced dynamics for all live (particle, hypothesis) pairs x friction: the padded
+        # (P, K) layout is compacted to the N live entries first.
+        pi, ki = np.nonzero(hyp.valid)
+        n_live = pi.size
+        slot = np.full((n_p, n_k), -1, dtype=np.int64)
+        slot[pi, ki] = np.arange(n_live)
         sol = solve_reduced(
-            modes_k[:, :, None, :],
-            v_free[:, None, None, :],
+            modes_k[pi, ki][:, None, :],
+            v_free[pi][:, None, :],
             inv_mass=self._inv_mass,
-            jn=kin.Jn[:, None, None],
-            jt=kin.Jt[:, None, None],
-            phi=kin.phi[:, None, None],
-            vn_env=kin.vn_env[:, None, None],
-            vt_env=kin.vt_env[:, None, None],
-            mu=self._mu[None, None],
+            jn=kin.Jn[pi][:, None],
+            jt=kin.Jt[pi][:, None],
+            phi=kin.phi[pi][:, None],
+            vn_env=kin.vn_env[pi][:, None],
+            vt_env=kin.vt_env[pi][:, None],
+            mu=self._mu[None],
             dt=dt,
             scales=self._scales,
             groups=self._layout.obstacle,
         )
-        v_h = sol.v_next  # (P, K, B, nv)
-        l_cond = lp - 0.5 * sol.score
-        l_cond = l_cond - _logsumexp(l_cond, axis=1)[:, None, :]
+        v_h = sol.v_next  # (N, B, nv)
+        l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
+        l_cond_full[pi, ki] = lp[pi, ki] - 0.5 * sol.score
+        l_cond_full = l_cond_full - _logsumexp(l_cond_full, axis=1)[:, None, :]
         with np.errstate(divide="ignore"):
-            log_alpha = np.log(self.fric)[:, None, :] + l_cond  # (P, K, B)
+            log_alpha_full = np.log(self.fric)[:, None, :] + l_cond_full  # (P, K, B)
+        log_alpha = log_alpha_full[pi, ki]  # (N, B)
         # 5. optimal proposal. Process noise is force noise: a perturbation e of the free
         # velocity reaches v' through the response map of the hypothesis (constrained
         # directions are absorbed by the contact impulses), plus a small isotropic part.
@@ -480,24 +487,26 @@ class DbcSlamFilter:
         if cfg.warmup_steps > 0:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         sig2 = (self._sigma_v * boost) ** 2
-        resp = sol.response  # (P, K, B, nv, nv)
+        resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
         prop = gaussian_proposal(
-            self.q[:, None, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
+            self.q[pi][:, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
         )
-        log_joint = log_alpha + prop.log_pred
+        log_joint = np.full((n_p, n_k, self.n_b), -np.inf)
+        log_joint[pi, ki] = log_alpha + prop.log_pred
         incr = _logsumexp(log_joint, axis=(1, 2))  # (P,)
         flat = log_joint.reshape(n_p, -1)
         gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
         k_star, b_star = np.unravel_index(pick, (n_k, self.n_b))
         rows = np.arange(n_p)
+        n_star = slot[rows, k_star]
         v_new, e_q = sample_gaussian_proposal(
             prop,
-            v_h=v_h[rows, k_star, b_star],
-            innovation=prop.innovation[rows, k_star, b_star],
-            v_mean=prop.v_mean[rows, k_star, b_star],
-            v_cov=prop.v_cov[rows, k_star, b_star],
+            v_h=v_h[n_star, b_star],
+            innovation=prop.innovation[n_star, b_star],
+            v_mean=prop.v_mean[n_star, b_star],
+            v_cov=prop.v_cov[n_star, b_star],
             dt=dt,
             rng=self.rng,
         )
@@ -505,8 +514,9 @@ class DbcSlamFilter:
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
         # 6. closed-form discrete posterior given the sampled continuous state
-        log_post = log_alpha + gaussian_log_density(v_new[:, None, None, :] - v_h, cov_h)
-        log_post = np.where(np.isfinite(log_alpha), log_post, -np.inf)
+        log_post = np.full((n_p, n_k, self.n_b), -np.inf)
+        dens = gaussian_log_density(v_new[pi][:, None, :] - v_h, cov_h)
+        log_post[pi, ki] = np.where(np.isfinite(log_alpha), log_alpha + dens, -np.inf)
         log_post = log_post - _logsumexp(log_post, axis=(1, 2))[:, None, None]
         post = np.exp(log_post)  # (P, K, B)
         fric_post = post.sum(axis=1)  # (P, B)

@@ -287,11 +287,21 @@ def run_demo(opts: DemoOptions) -> DemoResult:
             recorder.updated.clear()
         codes["filter"] = filt.stop(10.0)
         codes["record"] = recorder.stop(15.0)
+        if recorder.counts.get("/dbcslam/pose", 0) == 0 and not _has_estimates(bag):
+            msg = f"the filter published no estimates:\n{filt.tail()}"
+            raise DemoError(msg)
     finally:
         for child in reversed(children):
             if child.proc.poll() is None:
                 codes.setdefault(child.name, child.stop(5.0))
     return _summarise(bag, opts, codes, started, say)
+
+
+def _has_estimates(bag: Path) -> bool:
+    from dbcslam_ros.bag import open_bag
+
+    with open_bag(bag, salvage=True) as reader:
+        return reader.counts().get("/dbcslam/pose", 0) > 0
 
 
 def _summarise(

@@ -112,9 +112,18 @@ def load_extensions(path: str) -> tuple[ModelExtension, ...]:
         return ()
     import yaml
 
-    data = yaml.safe_load(Path(path).read_text())
-    items = data.get("extensions", [data]) if isinstance(data, dict) else data
-    return tuple(ModelExtension.from_dict(item) for item in items if item.get("effect") != "none")
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+        items = data.get("extensions", [data]) if isinstance(data, dict) else data
+        return tuple(
+            ModelExtension.from_dict(item) for item in items if item.get("effect") != "none"
+        )
+    except (OSError, yaml.YAMLError, DbcSlamError, ValueError, TypeError, AttributeError) as err:
+        msg = (
+            f"model_file {path!r} is not a model-extension YAML "
+            f"({{effect, params}} or extensions: [...]): {err}"
+        )
+        raise ParameterError(msg) from err
 
 
 def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:

@@ -364,6 +364,14 @@ def replay_bag(
     rejected = dict(session.rejected) if session is not None else {}
     if filt.rejected_before_scenario:
         rejected["before_scenario"] = filt.rejected_before_scenario
+    warnings = sorted(node.get_logger().warnings.items(), key=lambda kv: -kv[1])
+    if estimates == 0:
+        why = "; ".join(f"{text} (x{n})" for text, n in warnings[:3]) or "no warnings"
+        msg = (
+            f"{src}: the filter produced no estimates from {n_poses} poses "
+            f"(rejected inputs: {rejected or 'none'}; {why})"
+        )
+        raise BagError(msg)
     metrics, plots = _products(dst, opts)
     metrics["replay"] = {
         "source": str(src),
@@ -372,6 +380,7 @@ def replay_bag(
         "wall_s": round(wall, 4),
         "steps_per_s": round(estimates / wall, 2) if wall > 0 else None,
         "rejected": rejected,
+        "warnings": {text: n for text, n in warnings[:10]},
         "params": {k: v for k, v in sorted(filt.params.items())},
     }
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")

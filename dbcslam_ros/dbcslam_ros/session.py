@@ -18,9 +18,10 @@ observation into filter steps. Rules (documented in the README):
   sensor) re-initialises the filter at the new pose instead (counted in `resets`), except in
   catch-up.
 * Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
-  model steps for a gap of n > m steps, the last m of the gap; the state is held over the
-  skipped n - m steps (counted in `skipped_steps`). The model never runs faster than it
-  computes, so a slow filter lags the data by a bounded amount instead of a growing backlog.
+  model steps for a gap of n > m steps: the last m of the gap (their wrenches), with the
+  joint motion of the whole gap compressed into them; the other n - m steps are skipped
+  (counted in `skipped_steps`). A slow filter thus lags the data by a bounded amount instead
+  of a growing backlog, at a cost in accuracy (the skipped motion is squeezed into m steps).
 * Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
   the session counts them per reason and stays usable.
 """
@@ -196,16 +197,15 @@ class FilterSession:
         n_run = n_gap if max_steps is None else max(1, min(n_gap, int(max_steps)))
         started = time.perf_counter()
         est: Estimate | None = None
-        # Run the LAST n_run steps of the gap; the skipped ones hold the state.
+        # Run the LAST n_run steps of the gap. In catch-up the first of them starts from the
+        # joints of the previous pose (the filter remembers them), so the jaws' motion over
+        # the whole gap is compressed into n_run steps instead of jumping.
         first = reading.stamp_ns - n_run * dt_ns if n_run < n_gap else last
         for k in range(n_run):
             t_start = first + k * dt_ns
             t_end = reading.stamp_ns if k == n_run - 1 else t_start + dt_ns
             wrench = self._wrench.held(t_start) or (0.0, 0.0, 0.0)
-            joints_start = self._joints_at(t_start) if (k == 0 and n_run < n_gap) else None
-            inp = FilterInput(
-                wrench=wrench, joints=self._joints_at(t_end), joints_start=joints_start
-            )
+            inp = FilterInput(wrench=wrench, joints=self._joints_at(t_end))
             est = flt.step(obs if k == n_run - 1 else None, inp)
         assert est is not None
         self._last_pose_ns = reading.stamp_ns

@@ -286,7 +286,7 @@ class SimNode:
         deadline = time.monotonic() + limit
         pub = self.pubs["/object/pose"]
         while time.monotonic() < deadline and pub.get_subscription_count() == 0:
-            self.rt.spin_once(self.node, timeout_sec=0.02)
+            self.rt.spin_once(self.node, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
         if pub.get_subscription_count() > 0:
             # Give the reader's side of the match a moment to complete as well.
             self.rt.spin_once(self.node, timeout_sec=0.2)
@@ -312,6 +312,8 @@ class SimNode:
         mono0 = time.monotonic()
         names = list(src.joint_names)
         for tick in src.ticks:
+            if not rt.ok():  # SIGINT/SIGTERM
+                raise rt.ExternalShutdownException
             t_ns = round(tick.t * NS)
             if self.fast:
                 stamp_ns = t_ns

@@ -138,6 +138,7 @@ def test_gripper_tracks_and_prunes(gripper_traj: Trajectory) -> None:
     modes = np.array([e.modes.argmax(axis=1) for e in est])
     assert np.mean(modes == gripper_traj.modes[1:]) > 0.8
     assert est[-1].modes.shape == (6, 4) and est[-1].friction.shape == (1, 3)
+    assert est[-1].friction[0, 1] > 0.9  # mu = 0.4 identified by the end of the grasp
 
 
 def test_config_and_input_validation(edge_traj: Trajectory) -> None:

@@ -178,7 +178,12 @@ def test_bad_messages_are_counted_and_the_node_survives(
     assert filt.terminate() == 0
 
 
-def test_filter_rejects_bad_parameters(node_process: Any) -> None:
-    filt = node_process("dbcslam_ros.filter_node", "--ros-args", "-p", "catch_up_steps:=0")
+@pytest.mark.parametrize(
+    ("param", "needle"),
+    [("catch_up_steps:=0", "catch_up_steps"), ("model_file:=/no/such.yaml", "/no/such.yaml")],
+)
+def test_filter_rejects_bad_parameters(node_process: Any, param: str, needle: str) -> None:
+    filt = node_process("dbcslam_ros.filter_node", "--ros-args", "-p", param)
     assert filt.proc.wait(20) == 2
-    assert "catch_up_steps" in filt.log()
+    assert needle in filt.log()
+    assert "Traceback" not in filt.log()

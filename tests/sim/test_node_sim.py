@@ -190,3 +190,18 @@ def test_node_publishes_contract_qos_and_exits(sim_process: Any, listener: Any) 
 def test_node_bad_parameter_exits_2(sim_process: Any) -> None:
     proc = sim_process("-p", "scenario:=push", "-p", "engine:=core")
     assert proc.wait(30) == 2
+
+
+def test_node_stops_on_sigterm(sim_process: Any, tmp_path: Path) -> None:
+    proc = sim_process(
+        "-p", "scenario:=edge", "-p", "engine:=core", "-p", "duration:=30.0", "-p",
+        "wait_for_subscribers:=0.0",
+    )  # fmt: skip
+    log = tmp_path / "sim0.log"
+    deadline = time.monotonic() + 20.0
+    while "publishing scenario" not in log.read_text() and time.monotonic() < deadline:
+        assert proc.poll() is None, log.read_text()
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGTERM)
+    assert proc.wait(10) == 0
+    assert "Traceback" not in log.read_text()

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
+from types import FrameType
 
 from dbcslam_ros.cli.registry import Command
 
@@ -61,12 +63,20 @@ def _run(args: argparse.Namespace) -> int:
         markers=not args.no_markers,
         progress=sys.stdout,
     )
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, _terminate)  # so the child processes are stopped too
     try:
         run_demo(opts)
     except DemoError as err:
         print(f"dbcslam demo: {err}", file=sys.stderr)
         return 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _terminate(_signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
 
 
 COMMAND = Command(

@@ -12,18 +12,26 @@ __all__ = ["COMMAND"]
 
 _DESCRIPTION = """\
 Start the filter node (node name dbcslam_filter). It waits for the latched /scenario
-(what the robot knows a priori), then turns every /object/pose into one estimate,
-using /object/wrench (the applied input, held from the start of the step) and
-/joint_states (jaw or pusher positions, interpolated to the pose stamp). It publishes
-/dbcslam/pose first, then /dbcslam/odometry, /dbcslam/contact_modes, /dbcslam/friction,
-/dbcslam/friction_map, /dbcslam/markers, and /diagnostics once a second (ESS, live
-hypotheses, step time, latency, rejected inputs by reason).
+(what the robot knows a priori; a changed /scenario reconfigures it), then turns every
+/object/pose into one estimate, using /object/wrench (the applied input, held from the
+start of the step) and /joint_states (jaw or pusher positions, interpolated to the pose
+stamp). It publishes /dbcslam/pose first, then /dbcslam/odometry, /dbcslam/contact_modes,
+/dbcslam/friction, /dbcslam/friction_map, /dbcslam/markers; and /diagnostics every
+diagnostics_period s (ESS, live hypotheses, step time, latency from pose receipt to
+publication, input rate, rejected inputs by reason). It may start before or after the
+simulator.
+
+A bad message (NaN, zero quaternion, stamp going backwards, unknown joint) is logged
+(throttled), counted and dropped; the node keeps running. A jump back in time (a bag played
+with --loop) resets the filter. If the filter is slower than the input, stale poses are
+dropped (reason backlog) and the next step catches up with at most catch_up_steps model
+steps, so the lag stays bounded.
 
 Parameters (ROS params file `dbcslam_filter: {ros__parameters: {...}}` or
 --ros-args -p NAME:=VALUE): particles, ess_threshold, prune_threshold, parameter_model
 (reuse|mixture|geometric), contact_weight, gating_threshold, seed, scenario_file,
 model_file (a model extension from `dbcslam discrepancy`), frame_id, marker_particles,
-diagnostics_period. A bad message is logged, counted and dropped; SIGINT/SIGTERM stop."""
+diagnostics_period, catch_up_steps, max_gap, reset_after. SIGINT/SIGTERM stop it."""
 
 _EXAMPLES = """\
   dbcslam filter
