@@ -105,6 +105,7 @@ def solve_reduced(
     scales: ViolationScales | None = None,
     eps_rel: float = 1e-10,
     groups: npt.ArrayLike | None = None,
+    mass: npt.ArrayLike | None = None,
 ) -> ReducedSolution:
     """Solve the reduced (mode-fixed) time-stepping dynamics for all assignments at once.
 
@@ -120,6 +121,10 @@ def solve_reduced(
     (np.linalg.solve, batched; no inverse). A relative Tikhonov term eps_rel on the velocity rows
     keeps statically indeterminate assignments (more constraints than dofs) solvable: it only
     changes impulses in the null space of W^T, which does not move v'.
+
+    mass (..., nv, nv) optional full (effective) mass matrix, e.g. M + dt K with the support
+    friction K of `PlanarModel.support_matrix` (push scenario): replaces the diagonal
+    `inv_mass` (solved, never inverted).
 
     groups (C,) optional obstacle index per contact: the friction cone of sticking contacts on
     the same flat obstacle is checked in aggregate, |sum lt| <= sum mu ln. Their tangential
@@ -159,74 +164,45 @@ def solve_reduced(
     mdb = np.broadcast_to(md, (*lead, n_c))
     act = np.flatnonzero(np.any(mdb != Mode.SEPARATED, axis=tuple(range(len(lead)))))
     n_a = act.size
-    ln = np.zeros((*lead, n_c))
-    lt = np.zeros((*lead, n_c))
-    dv = np.zeros((*lead, nv))
-    response = np.broadcast_to(np.eye(nv), (*lead, nv, nv))
-    rows_act = np.any(mdb != Mode.SEPARATED, axis=-1)  # entries needing a solve
-    if n_a and not rows_act.all():
-        # all-separated entries keep v' = v_free (identity response): solve only the others
-        sel = np.nonzero(rows_act)
-        sub = _solve_active(
-            mdb[sel][..., act],
-            np.broadcast_to(vf, (*lead, nv))[sel],
-            np.broadcast_to(im, (*lead, nv))[sel],
-            np.broadcast_to(jn_a, (*lead, n_c, nv))[sel][..., act, :],
-            np.broadcast_to(jt_a, (*lead, n_c, nv))[sel][..., act, :],
-            np.broadcast_to(an, (*lead, n_c))[sel][..., act],
-            np.broadcast_to(at, (*lead, n_c))[sel][..., act],
-            np.broadcast_to(mu_a, (*lead, n_c))[sel][..., act],
-            eps_rel,
-        )
-        ln_s, lt_s, dv_s, resp_s = sub
-        ln[sel + (slice(None),)] = _scatter_cols(ln_s, act, n_c)
-        lt[sel + (slice(None),)] = _scatter_cols(lt_s, act, n_c)
-        dv[sel] = dv_s
-        response = np.array(response, copy=True)
-        response[sel] = resp_s
-        n_a = 0  # done
+    n_m = int(np.prod(lead, dtype=np.int64))
+    ln = np.zeros((n_m, n_c))
+    lt = np.zeros((n_m, n_c))
+    dv = np.zeros((n_m, nv))
+    response = np.tile(np.eye(nv), (n_m, 1, 1))
     if n_a:
-        w = np.concatenate([jn_a[..., act, :], jt_a[..., act, :]], axis=-2)  # (.., 2Ca, nv)
-        wm = w * im[..., None, :]
-        d = wm @ np.swapaxes(w, -1, -2)  # Delassus (.., 2Ca, 2Ca)
-        diag_mean = np.mean(np.diagonal(d, axis1=-2, axis2=-1), axis=-1)
-        eps = eps_rel * np.maximum(diag_mean, 1e-300)
-        eye = np.eye(2 * n_a)
-        m_a = mdb[..., act]
-        sep = m_a == Mode.SEPARATED
-        stick = m_a == Mode.STICKING
-        pos = m_a == Mode.SLIDING_POS
-        neg = m_a == Mode.SLIDING_NEG
-        vel_row = np.concatenate([~sep, stick], axis=-1)
-        d_reg = d + eps[..., None, None] * eye
-        amat = np.where(vel_row[..., None], d_reg, eye)
-        mu_act = np.broadcast_to(mu_a, (*lead, n_c))[..., act]
-        coup = np.where(pos, mu_act, np.where(neg, -mu_act, 0.0))
-        ar = np.arange(n_a)
-        amat = np.array(amat, copy=True)
-        amat[..., n_a + ar, ar] += coup
-        an_b = np.broadcast_to(an, (*lead, n_c))[..., act]
-        at_b = np.broadcast_to(at, (*lead, n_c))[..., act]
-        rhs = np.concatenate([np.where(~sep, -an_b, 0.0), np.where(stick, -at_b, 0.0)], -1)
-        # columns 1..nv: sensitivity of the impulses to a perturbation of v_free
-        jn_act = np.broadcast_to(jn_a[..., act, :], (*lead, n_a, nv))
-        jt_act = np.broadcast_to(jt_a[..., act, :], (*lead, n_a, nv))
-        sens = np.concatenate(
-            [np.where(~sep[..., None], -jn_act, 0.0), np.where(stick[..., None], -jt_act, 0.0)],
-            axis=-2,
+        # All-separated entries keep v' = v_free (identity response). The others are solved
+        # over their own non-separated contacts only: each row's active contacts are moved to
+        # the front, so the systems are 2n x 2n with n the largest active count of a row.
+        rows = np.flatnonzero(np.any(mdb != Mode.SEPARATED, axis=-1).reshape(n_m))
+
+        def flat(x: FloatArray, tail: tuple[int, ...]) -> FloatArray:
+            return np.broadcast_to(x, (*lead, *tail)).reshape(n_m, *tail)[rows]
+
+        m_rows = mdb.reshape(n_m, n_c)[rows]
+        is_sep = m_rows == Mode.SEPARATED
+        n_max = int((~is_sep).sum(axis=1).max())
+        idx = np.argsort(is_sep, axis=1, kind="stable")[:, :n_max]  # (M, n_max)
+        idx3 = idx[..., None]
+        ln_s, lt_s, dv_s, resp_s = _solve_active(
+            np.take_along_axis(m_rows, idx, axis=1),
+            vf=flat(vf, (nv,)),
+            im=flat(im, (nv,)),
+            jn_act=np.take_along_axis(flat(jn_a, (n_c, nv)), idx3, axis=1),
+            jt_act=np.take_along_axis(flat(jt_a, (n_c, nv)), idx3, axis=1),
+            an_b=np.take_along_axis(flat(an, (n_c,)), idx, axis=1),
+            at_b=np.take_along_axis(flat(at, (n_c,)), idx, axis=1),
+            mu_act=np.take_along_axis(flat(mu_a, (n_c,)), idx, axis=1),
+            eps_rel=eps_rel,
+            mass=None if mass is None else flat(np.asarray(mass, dtype=np.float64), (nv, nv)),
         )
-        rhs_all = np.concatenate([rhs[..., None], sens], axis=-1)  # (.., 2Ca, 1 + nv)
-        try:
-            sol_all = np.linalg.solve(amat, rhs_all)
-        except np.linalg.LinAlgError as err:
-            msg = f"reduced dynamics system is singular for {int(np.prod(lead))} assignments"
-            raise SolverError(msg) from err
-        lam = sol_all[..., 0]
-        ln[..., act] = lam[..., :n_a]
-        lt[..., act] = lam[..., n_a:]
-        wt_sol = np.swapaxes(w, -1, -2) @ sol_all  # (.., nv, 1 + nv)
-        dv = im * wt_sol[..., 0]
-        response = np.eye(nv) + im[..., :, None] * wt_sol[..., 1:]
+        ln[rows[:, None], idx] = ln_s
+        lt[rows[:, None], idx] = lt_s
+        dv[rows] = dv_s
+        response[rows] = resp_s
+    ln = ln.reshape(*lead, n_c)
+    lt = lt.reshape(*lead, n_c)
+    dv = dv.reshape(*lead, nv)
+    response = response.reshape(*lead, nv, nv)
     v_next = np.broadcast_to(vf, (*lead, nv)) + dv
     gap_rate = (jn_a @ v_next[..., None])[..., 0] - vne + phi_a / dt
     vt = (jt_a @ v_next[..., None])[..., 0] - vte
@@ -274,14 +250,9 @@ def solve_reduced(
     )
 
 
-def _scatter_cols(x: FloatArray, cols: IntArray, n: int) -> FloatArray:
-    out = np.zeros((*x.shape[:-1], n))
-    out[..., cols] = x
-    return out
-
-
 def _solve_active(
     m_a: IntArray,
+    *,
     vf: FloatArray,
     im: FloatArray,
     jn_act: FloatArray,
@@ -290,12 +261,17 @@ def _solve_active(
     at_b: FloatArray,
     mu_act: FloatArray,
     eps_rel: float,
+    mass: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Impulses, dv and response of the reduced system on the active contacts (rows (M,))."""
     n_a = m_a.shape[-1]
     nv = vf.shape[-1]
     w = np.concatenate([jn_act, jt_act], axis=-2)  # (M, 2Ca, nv)
-    d = (w * im[..., None, :]) @ np.swapaxes(w, -1, -2)
+    if mass is None:
+        wm = w * im[..., None, :]  # (M^-1 W^T)^T for a diagonal mass
+    else:  # full effective mass: solved, not inverted
+        wm = np.swapaxes(np.linalg.solve(mass, np.swapaxes(w, -1, -2)), -1, -2)
+    d = wm @ np.swapaxes(w, -1, -2)
     diag_mean = np.mean(np.diagonal(d, axis1=-2, axis2=-1), axis=-1)
     eps = eps_rel * np.maximum(diag_mean, 1e-300)
     eye = np.eye(2 * n_a)
@@ -320,9 +296,9 @@ def _solve_active(
         msg = f"reduced dynamics system is singular for {m_a.shape[0]} assignments"
         raise SolverError(msg) from err
     lam = sol_all[..., 0]
-    wt_sol = np.swapaxes(w, -1, -2) @ sol_all
-    dv = im * wt_sol[..., 0]
-    response = np.eye(nv) + im[..., :, None] * wt_sol[..., 1:]
+    wt_sol = np.swapaxes(wm, -1, -2) @ sol_all  # M^-1 W^T sol
+    dv = wt_sol[..., 0]
+    response = np.eye(nv) + wt_sol[..., 1:]
     return lam[..., :n_a], lam[..., n_a:], dv, response
 
 

@@ -84,6 +84,8 @@ class FilterConfig:
     * warmup_steps / warmup_boost: during the first warmup_steps steps the process noise is
       inflated by a factor decaying linearly from 1 + warmup_boost to 1 (the initial velocity
       is unobserved; this lets the cloud lock onto it).
+    * support_velocity_eps (m/s): regularisation of the linearised support friction (push
+      scenario: implicit Coulomb friction with the table, `PlanarModel.support_matrix`).
     * friction_hold_steps: the friction belief is held at the prior for this many initial
       steps (particles with wrong initial velocities that collide would bias it).
     * transition: softened NCP transition parameters; violation_impulse (dimensionless,
@@ -108,6 +110,7 @@ class FilterConfig:
     free_weight: float = 0.0
     process_noise: tuple[float, float, float] = (0.01, 0.01, 0.5)
     position_noise: tuple[float, float, float] = (1e-5, 1e-5, 1e-4)
+    support_velocity_eps: float = 5e-3
     constrained_noise: float = 0.01
     friction_hold_steps: int = 0
     warmup_steps: int = 30
@@ -302,6 +305,15 @@ class DbcSlamFilter:
         self._mu = np.stack(
             [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
         )  # (B, C)
+        # support friction (push): coefficient per friction hypothesis b, or None
+        sp = self.model.surface_pair
+        self._surface_pair = sp
+        self._mu_surface: FloatArray | None
+        if sp is not None:
+            self._mu_surface = cand[sp][beta[:, sp]]  # (B,)
+        else:
+            known = self.model.surface_mu()
+            self._mu_surface = None if known is None else np.full(self.n_b, float(known))
         self._prior_pair = [np.asarray(p, dtype=np.float64) for p in fr.prior]
         if cfg.frozen_friction is not None:
             self._prior_b = np.ones(1)
@@ -422,8 +434,20 @@ class DbcSlamFilter:
 
         # 1. kinematics and free motion
         kin = contact_kinematics(self.scenario, self.q, env0, env_vel)
-        f = self.model.generalized_force(self.q, self.v, u)
-        v_free = self.v + dt * f * self._inv_mass
+        m_eff: FloatArray | None = None
+        v_free_b: FloatArray | None = None
+        if self._mu_surface is None:
+            f = self.model.generalized_force(self.q, self.v, u)
+            v_free = self.v + dt * f * self._inv_mass
+        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
+            k1 = self.model.support_matrix(
+                self.q, self.v, 1.0, velocity_eps=cfg.support_velocity_eps
+            )
+            m_eff = (
+                self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
+            )
+            v_free_b = self.model.free_velocity(self.q[:, None], self.v[:, None], u, m_eff)
+            v_free = np.einsum("pb,pbv->pv", self.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
         # 2. transition (softened NCP + persistence)
@@ -461,7 +485,7 @@ class DbcSlamFilter:
         slot[pi, ki] = np.arange(n_live)
         sol = solve_reduced(
             modes_k[pi, ki][:, None, :],
-            v_free[pi][:, None, :],
+            v_free[pi][:, None, :] if v_free_b is None else v_free_b[pi],
             inv_mass=self._inv_mass,
             jn=kin.Jn[pi][:, None],
             jt=kin.Jt[pi][:, None],
@@ -472,6 +496,7 @@ class DbcSlamFilter:
             dt=dt,
             scales=self._scales,
             groups=self._layout.obstacle,
+            mass=None if m_eff is None else m_eff[pi],
         )
         v_h = sol.v_next  # (N, B, nv)
         l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
@@ -536,6 +561,8 @@ class DbcSlamFilter:
             ],
             axis=-1,
         )  # (P, pairs)
+        if self._surface_pair is not None:
+            pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
         fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
         # 7. eq. (7): predictive friction belief for the next step

@@ -42,6 +42,7 @@ from .scenario import Scenario, SurfaceSpec, edge_scenario, gripper_scenario, pu
 __all__ = [
     "EDGE_ROUGH",
     "PUSH_RECT",
+    "PUSH_RECT_MASS",
     "Trajectory",
     "edge_mu_field",
     "edge_trajectory",

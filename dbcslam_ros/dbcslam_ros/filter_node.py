@@ -90,6 +90,10 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 #: A filter step slower than this (s) is logged as a warning.
 SLOW_STEP_S = 0.5
 
+#: Poses in a row outside the gate (accepted ones included) after which the filter is
+#: considered lost and re-initialised at the next pose (reason `diverged`).
+DIVERGED_AFTER = 12
+
 #: Number of recent processed poses the step-time and latency statistics cover.
 WINDOW = 1000
 
@@ -170,6 +174,7 @@ class FilterNode:
         self._pending: tuple[PoseReading, float] | None = None
         self._dropped_since_step = False
         self._outliers_in_row = 0
+        self._exceed_in_row = 0
         self._rate_window: deque[float] = deque()
 
         sensor = rt.qos_profile("sensor_data", depth=50)
@@ -322,12 +327,20 @@ class FilterNode:
             return
         reading, received = self._pending
         self._pending = None
-        catch_up = int(self.params["catch_up_steps"]) if self._dropped_since_step else None
-        self._dropped_since_step = False
         session = self.session
         if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
+            self._exceed_in_row += 1
+            if self._exceed_in_row >= DIVERGED_AFTER:
+                # Even accepted poses did not pull the estimate back: the filter is lost.
+                self._reject("diverged", "estimate far from the observations: filter reset")
+                session.reset(keep_until_ns=reading.stamp_ns)
+                self.last_estimate = None
+                self._exceed_in_row = 0
+                self._outliers_in_row = 0
+                return
             if self._outliers_in_row < MAX_CONSECUTIVE_OUTLIERS:
                 self._outliers_in_row += 1
+                self._dropped_since_step = True  # the gap it leaves is data we had
                 self._reject("outlier", "rejected /object/pose: outside the gating threshold")
                 return
             # Persistent: the motion changed, not the sensor. Let the filter follow.
@@ -335,8 +348,14 @@ class FilterNode:
                 f"{self._outliers_in_row} poses in a row outside the gate: accepting",
                 throttle_duration_sec=2.0,
             )
+        else:
+            self._exceed_in_row = 0
         self._outliers_in_row = 0
         resets = session.resets
+        # Catch up only over gaps of poses we received but did not use (own backlog);
+        # a gap in the data itself is run in full.
+        catch_up = int(self.params["catch_up_steps"]) if self._dropped_since_step else None
+        self._dropped_since_step = False
         try:
             results = session.add_pose(reading, max_steps=catch_up)
         except InputRejected as err:
@@ -505,7 +524,8 @@ class FilterNode:
         Times in ms; rates in Hz over the last diagnostics period; counters since start.
         ``rejected_<reason>``: inputs dropped per reason (``nan``, ``zero_quaternion``,
         ``stamp_order``, ``unknown_joint``, ``missing_joint``, ``malformed``, ``no_joints``,
-        ``outlier``, ``backlog``, ``filter_error``, ``nan_estimate``, ``bad_scenario``).
+        ``outlier``, ``backlog``, ``diverged``, ``filter_error``, ``nan_estimate``,
+        ``bad_scenario``).
         """
         now = time.monotonic()
         period = float(self.params["diagnostics_period"])

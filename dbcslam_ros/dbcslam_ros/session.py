@@ -18,10 +18,11 @@ observation into filter steps. Rules (documented in the README):
   sensor) re-initialises the filter at the new pose instead (counted in `resets`), except in
   catch-up.
 * Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
-  model steps for a gap of n > m steps: the last m of the gap (their wrenches), with the
-  joint motion of the whole gap compressed into them; the other n - m steps are skipped
-  (counted in `skipped_steps`). A slow filter thus lags the data by a bounded amount instead
-  of a growing backlog, at a cost in accuracy (the skipped motion is squeezed into m steps).
+  model steps for a gap of n > m steps. The particles first coast over the n - m skipped
+  steps at their own constant velocity (no contact dynamics; counted in `skipped_steps`),
+  then the last m steps of the gap run with their wrenches and joint readings. A slow filter
+  thus lags the data by a bounded amount instead of a growing backlog, at a cost in
+  accuracy while it is behind.
 * Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
   the session counts them per reason and stays usable.
 """
@@ -36,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dbcslam_core.extensions import ModelExtension
+from dbcslam_core.geometry import wrap_angle
 from dbcslam_core.observation import PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.scenario import Scenario
@@ -197,15 +199,20 @@ class FilterSession:
         n_run = n_gap if max_steps is None else max(1, min(n_gap, int(max_steps)))
         started = time.perf_counter()
         est: Estimate | None = None
-        # Run the LAST n_run steps of the gap. In catch-up the first of them starts from the
-        # joints of the previous pose (the filter remembers them), so the jaws' motion over
-        # the whole gap is compressed into n_run steps instead of jumping.
-        first = reading.stamp_ns - n_run * dt_ns if n_run < n_gap else last
+        # Run the LAST n_run steps of the gap; in catch-up the particles first coast over the
+        # skipped steps at their own velocity and the joints restart from their readings.
+        first = last
+        if n_run < n_gap:
+            first = reading.stamp_ns - n_run * dt_ns
+            self._coast(flt, (n_gap - n_run) * self.scenario.dt)
         for k in range(n_run):
             t_start = first + k * dt_ns
             t_end = reading.stamp_ns if k == n_run - 1 else t_start + dt_ns
             wrench = self._wrench.held(t_start) or (0.0, 0.0, 0.0)
-            inp = FilterInput(wrench=wrench, joints=self._joints_at(t_end))
+            joints_start = self._joints_at(t_start) if (k == 0 and first != last) else None
+            inp = FilterInput(
+                wrench=wrench, joints=self._joints_at(t_end), joints_start=joints_start
+            )
             est = flt.step(obs if k == n_run - 1 else None, inp)
         assert est is not None
         self._last_pose_ns = reading.stamp_ns
@@ -255,6 +262,16 @@ class FilterSession:
     def _new_filter(self) -> None:
         rng = np.random.default_rng(self.seed + self.resets)
         self._filter = DbcSlamFilter(self.scenario, self.config, rng, extensions=self.extensions)
+
+    def _coast(self, flt: DbcSlamFilter, seconds: float) -> None:
+        """Move every particle at its own constant velocity for `seconds` (catch-up only).
+
+        Uses the filter's public particle arrays q (P, nq) and v (P, nq); yaw is wrapped.
+        """
+        q = np.asarray(flt.q, dtype=np.float64) + np.asarray(flt.v, dtype=np.float64) * seconds
+        if self.scenario.nq == 3:
+            q[:, 2] = wrap_angle(q[:, 2])
+        flt.q = q
 
     def _joints_at(self, t_ns: int) -> tuple[float, ...]:
         n = len(self.scenario.joints)

@@ -55,6 +55,9 @@ class Simulation(ABC):
     name: ClassVar[str]
     params_type: ClassVar[type[SimParams]]
     point_body: ClassVar[bool] = False
+    cone_friction: ClassVar[bool] = False
+    """pybullet friction model: True = implicit cone (isotropic Coulomb, as the core model),
+    False = pyramid (two independent directions; resists rotation of a sliding body)."""
 
     def __init__(self, params: SimParams) -> None:
         if not isinstance(params, self.params_type):
@@ -132,7 +135,9 @@ class Simulation(ABC):
         steps = p.steps_per_sample
         n_joints = len(self.joint_names)
         noise = p.noise
-        with BulletClient(p.physics_dt, self._gravity(), p.solver_iterations) as client:
+        with BulletClient(
+            p.physics_dt, self._gravity(), p.solver_iterations, cone_friction=self.cone_friction
+        ) as client:
             cid = client.id
             self._build(cid)
             prev_yaw: float | None = None

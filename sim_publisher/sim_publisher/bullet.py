@@ -41,7 +41,9 @@ SEPARATED, STICKING, SLIDING_POS, SLIDING_NEG = 0, 1, 2, 3
 class BulletClient:
     """A pybullet DIRECT client configured for stiff, Coulomb-like contact.
 
-    Two-direction (pyramid) friction, no restitution, 'contactSlop' 0: pybullet otherwise
+    Friction: pyramid (two independent directions) by default, implicit cone (isotropic
+    Coulomb) with `cone_friction=True` (used for push: the pyramid resists the rotation of a
+    sliding body for free). No restitution, 'contactSlop' 0: pybullet otherwise
     leaves a steady 10 um penetration in resting contacts, which makes a squeezed body look
     jammed (negative gaps on both jaws) to a rigid time-stepping model.
     physics_dt: s. gravity: world-frame gravity vector (m/s^2). solver_iterations: constraint
@@ -53,6 +55,7 @@ class BulletClient:
         physics_dt: float,
         gravity: Sequence[float],
         solver_iterations: int = 100,
+        cone_friction: bool = False,
     ) -> None:
         cid = pb.connect(pb.DIRECT)
         if cid < 0:
@@ -69,7 +72,7 @@ class BulletClient:
             contactERP=0.2,
             frictionERP=0.2,
             restitutionVelocityThreshold=10.0,
-            enableConeFriction=0,
+            enableConeFriction=1 if cone_friction else 0,
             deterministicOverlappingPairs=1,
             contactSlop=0.0,
             physicsClientId=cid,

@@ -54,8 +54,9 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "engine": ("pybullet", "pybullet (physics simulation) | core (synthetic trajectories)"),
     "wait_for_subscribers": (
         2.0,
-        "s to wait for a subscriber of /object/pose before the first sample (0: no wait)",
+        "s to wait for subscribers of /object/pose before the first sample (0: no wait)",
     ),
+    "min_subscribers": (1, "number of /object/pose subscribers to wait for"),
     "frame_id": ("world", "frame of the published poses and wrenches"),
 }
 
@@ -279,13 +280,15 @@ class SimNode:
         self.pubs["/scenario"].publish(string(data=self.source.scenario_yaml))
 
     def wait_for_subscribers(self) -> None:
-        """Wait (bounded by the parameter) until /object/pose has a subscriber."""
+        """Wait (bounded by `wait_for_subscribers` s) until /object/pose has
+        `min_subscribers` subscribers."""
         limit = float(self.params["wait_for_subscribers"])
         if limit <= 0.0:
             return
+        wanted = max(1, int(self.params["min_subscribers"]))
         deadline = time.monotonic() + limit
         pub = self.pubs["/object/pose"]
-        while time.monotonic() < deadline and pub.get_subscription_count() == 0:
+        while time.monotonic() < deadline and pub.get_subscription_count() < wanted:
             self.rt.spin_once(self.node, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
         if pub.get_subscription_count() > 0:
             # Give the reader's side of the match a moment to complete as well.

@@ -85,6 +85,7 @@ class PushSimulation(Simulation):
 
     name = "push"
     params_type = PushParams
+    cone_friction = True
 
     def __init__(self, params: PushParams | None = None) -> None:
         super().__init__(params if params is not None else PushParams())

@@ -236,3 +236,72 @@ def test_response_is_derivative_of_reduced_solution(mode: Mode) -> None:
     np.testing.assert_allclose(moved.v_next - base.v_next, base.response @ dvf, atol=1e-10)
     if mode == Mode.SEPARATED:
         np.testing.assert_allclose(base.response, np.eye(3), atol=1e-12)
+
+
+def test_batched_solve_equals_individual_solves() -> None:
+    """Mixed batches (all-separated rows, different active sets and frictions) are solved
+    exactly as each assignment on its own."""
+    model = PlanarModel(GRIPPER)
+    rng = np.random.default_rng(7)
+    env = np.array([-0.03, 0.03])
+    q = np.array([[0.001, 0.0, 0.2], [0.0, 0.004, -0.1], [-0.002, -0.003, 0.5]])
+    v = rng.normal(size=(3, 3)) * 0.05
+    u = rng.normal(size=(3, 3)) * 0.1
+    modes = rng.integers(0, 4, size=(3, 5, 6)) * (rng.random((3, 5, 6)) < 0.3)
+    modes[:, 0] = 0  # an all-separated row per particle
+    mu = np.array([0.1, 0.4, 0.7])
+    sc = GRIPPER
+    kin = contact_kinematics(sc, q, env)
+    vf = v + sc.dt * model.generalized_force(q, v, u) / model.mass_diag
+    groups = [c.obstacle for c in sc.potential_contacts]
+
+    def solve(m, sl):  # type: ignore[no-untyped-def]
+        return solve_reduced(
+            m,
+            vf[sl],
+            inv_mass=1.0 / model.mass_diag,
+            jn=kin.Jn[sl],
+            jt=kin.Jt[sl],
+            phi=kin.phi[sl],
+            vn_env=kin.vn_env[sl],
+            vt_env=kin.vt_env[sl],
+            mu=np.full(6, 1.0) * mu[:, None],
+            dt=sc.dt,
+            groups=groups,
+        )
+
+    full = solve(modes[:, :, None, :], (slice(None), None, None))
+    for p in range(3):
+        for k in range(5):
+            one = solve(modes[p, k][None, :], (p,))
+            np.testing.assert_allclose(full.v_next[p, k], one.v_next, atol=1e-12)
+            np.testing.assert_allclose(full.ln[p, k], one.ln, atol=1e-12)
+            np.testing.assert_allclose(full.response[p, k], one.response, atol=1e-12)
+            np.testing.assert_allclose(full.score[p, k], one.score, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(full.response[:, 0], np.broadcast_to(np.eye(3), (3, 3, 3, 3)))
+
+
+def test_full_mass_matches_diagonal_mass() -> None:
+    model = PlanarModel(GRIPPER)
+    q = np.array([0.0, 0.0, 0.3])
+    kin = contact_kinematics(GRIPPER, q, np.array([-0.05, 0.05]))
+    q[1] -= float(np.min(kin.phi[:3]))
+    kin = contact_kinematics(GRIPPER, q, np.array([-0.05, 0.05]))
+    vf = np.array([0.05, -0.1, 0.5])
+    modes = np.zeros((4, 6), dtype=np.int64)
+    modes[:, int(np.argmin(kin.phi[:3]))] = np.arange(4)
+    common = {
+        "inv_mass": 1.0 / model.mass_diag,
+        "jn": kin.Jn,
+        "jt": kin.Jt,
+        "phi": kin.phi,
+        "vn_env": kin.vn_env,
+        "vt_env": kin.vt_env,
+        "mu": np.full(6, 0.4),
+        "dt": GRIPPER.dt,
+    }
+    diag = solve_reduced(modes, vf, **common)
+    full = solve_reduced(modes, vf, mass=np.diag(model.mass_diag), **common)
+    np.testing.assert_allclose(full.v_next, diag.v_next, atol=1e-13)
+    np.testing.assert_allclose(full.response, diag.response, atol=1e-12)
+    np.testing.assert_allclose(full.score, diag.score, atol=1e-9)

@@ -300,3 +300,25 @@ def test_push_trajectory_with_given_scenario_and_known_support() -> None:
     assert tr.n_steps == round((0.06 / 0.1 + 0.3) / 0.005) + 1
     with pytest.raises(ModelError, match="side"):
         push_trajectory(0, side=9)
+
+
+def test_batched_step_equals_single_steps(model: PlanarModel) -> None:
+    """Each batch element re-linearises on its own (converged elements drop out)."""
+    rng = np.random.default_rng(3)
+    start, d = push_path(
+        PUSH_RECT, side=0, side_position=0.7, angle=0.2, pusher_radius=0.00475, approach=0.0
+    )
+    q = np.zeros((6, 3))
+    v = rng.normal(size=(6, 3)) * [0.03, 0.03, 0.3]
+    v[0] = 0.0
+    env0 = np.broadcast_to(start, (6, 2))
+    env1 = env0 + 0.0005 * d
+    mu_pair = np.array([[MU_P, s] for s in (0.1, 0.2, 0.25, 0.3, 0.4, 0.5)])
+    batch = model.step(State(q, v), np.zeros(3), env0, env1, mu_pair=mu_pair)
+    for i in range(6):
+        one = model.step(State(q[i], v[i]), np.zeros(3), env0[i], env1[i], mu_pair=mu_pair[i])
+        assert np.allclose(batch.v[i], one.v, rtol=0.0, atol=1e-9)
+        assert np.allclose(batch.ln[i], one.ln, rtol=0.0, atol=1e-11)
+        assert batch.modes[i, 0] == one.modes[0]
+    assert batch.modes.dtype == np.int64
+    assert batch.q.shape == (6, 3) and batch.ln.shape == (6, 1)

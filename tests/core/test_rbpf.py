@@ -158,3 +158,25 @@ def test_config_and_input_validation(edge_traj: Trajectory) -> None:
         f.step(PoseObservation(0.0, 0.1), FilterInput((0.0, 0.0), joints=(0.1,)))
     e = f.step(PoseObservation(0.0, 0.1), FilterInput((0.0, 0.0)))
     assert e.step == 1 and e.pose.shape == (3,) and e.twist_cov.shape == (3, 3)
+
+
+def test_push_with_support_friction_runs_through_the_same_filter() -> None:
+    from dbcslam_core.synthetic import push_trajectory
+
+    traj = push_trajectory(0)
+    n = 80
+    short = replace(
+        traj,
+        t=traj.t[:n],
+        q=traj.q[:n],
+        u=traj.u[:n],
+        env=traj.env[:n],
+        modes=traj.modes[:n],
+        obs=traj.obs[:n],
+        env_obs=traj.env_obs[:n],
+    )
+    est, f = _run(short, FilterConfig.preset("push", particles=60))
+    assert f._mu_surface is not None  # the support pair's candidates are hypotheses
+    assert _pos_rmse(est, short) < traj.scenario.noise.position
+    assert est[-1].friction.shape == (2, 3)
+    np.testing.assert_allclose(est[-1].friction.sum(axis=1), 1.0)

@@ -3,16 +3,20 @@ replay of the recorded live run reproducing its estimates."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
+import random
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from dbcslam_ros.bag import open_bag
 from dbcslam_ros.cli import main as cli_main
-from dbcslam_ros.demo import DemoOptions, DemoResult, run_demo
+from dbcslam_ros.demo import DemoOptions, run_demo
 from dbcslam_ros.errors import UsageError
 from dbcslam_ros.evaluate import load_bag_arrays
 from dbcslam_ros.replay import ReplayOptions, replay_bag
@@ -21,50 +25,59 @@ PARTICLES = 40
 SEED = 2
 
 
+@dataclass(frozen=True)
+class DemoRun:
+    bag: Path
+    code: int
+    printed: str
+
+
 @pytest.fixture(scope="module")
-def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[DemoResult, str]:
-    """One short live demo (core engine: fast and deterministic physics)."""
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> DemoRun:
+    """One short live demo through the CLI (core engine: fast, deterministic physics)."""
     out = tmp_path_factory.mktemp("demo") / "edge_run"
     stream = io.StringIO()
-    result = run_demo(
-        DemoOptions(
-            scenario="edge",
-            engine="core",
-            duration=2.0,
-            particles=PARTICLES,
-            seed=SEED,
-            out=out,
-            progress=stream,
-        )
-    )
-    return result, stream.getvalue()
+    argv = ["demo", "--scenario", "edge", "--engine", "core", "--duration", "2"]
+    argv += ["--particles", str(PARTICLES), "--seed", str(SEED), "--out", str(out)]
+    # A domain of its own, outside the 1..100 of tests/conftest.py: other test runs on this
+    # machine (other suites start simulators too) must not cross-talk with the recording.
+    domain = str(random.SystemRandom().randint(120, 230))
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stream):
+        mp.setenv("ROS_DOMAIN_ID", domain)
+        code = cli_main(argv)
+    return DemoRun(out, code, stream.getvalue())
 
 
-def test_demo_records_a_bag_and_summarises(demo_run: tuple[DemoResult, str]) -> None:
-    result, printed = demo_run
-    assert result.exit_codes == {"sim": 0, "filter": 0, "record": 0}
-    assert (result.bag / "metadata.yaml").is_file()
-    metrics = json.loads((result.bag / "metrics.json").read_text())
+def test_demo_records_a_bag_and_summarises(demo_run: DemoRun) -> None:
+    assert demo_run.code == 0, demo_run.printed
+    bag = demo_run.bag
+    assert (bag / "metadata.yaml").is_file()
+    metrics = json.loads((bag / "metrics.json").read_text())
+    assert metrics["demo"]["exit_codes"] == {"sim": 0, "filter": 0, "record": 0}
     assert metrics["scenario"] == "edge"
-    poses = metrics["demo"]["poses"]
-    assert poses == 201  # 2 s at 100 Hz, t = 0 included: nothing lost by the recorder
-    assert metrics["estimates"] >= 0.3 * poses
+    with open_bag(bag) as reader:
+        counts = reader.counts()
+    # 2 s at 100 Hz, t = 0 included. The recorder subscribed before the simulator started,
+    # so the reliable truth is complete; best-effort inputs may lose a message under load.
+    assert counts["/truth/object/pose"] == 201
+    assert counts["/object/pose"] >= 195
+    assert counts["/scenario"] == 1
+    assert counts["/dbcslam/markers"] == counts["/dbcslam/pose"] == metrics["estimates"]
+    assert metrics["estimates"] >= 0.3 * counts["/object/pose"]
     # Smoke bound only: live accuracy depends on how many poses a loaded machine drops.
     assert metrics["position_rmse_over_noise"] < 5.0
+    printed = demo_run.printed
     assert "sim time" in printed and "position RMSE" in printed and "mode accuracy" in printed
-    names = {p.name for p in result.plots}
+    names = {p.name for p in bag.glob("*.png")}
     assert {"trajectory.png", "contacts.png", "friction.png", "friction_map.png"} <= names
-    for p in result.plots:
-        assert p.parent == result.bag and p.read_bytes()[:4] == b"\x89PNG"
+    for p in bag.glob("*.png"):
+        assert p.read_bytes()[:4] == b"\x89PNG"
 
 
-def test_replay_reproduces_the_live_estimates(
-    demo_run: tuple[DemoResult, str], tmp_path: Path
-) -> None:
-    result, _ = demo_run
-    live = load_bag_arrays(result.bag)
+def test_replay_reproduces_the_live_estimates(demo_run: DemoRun, tmp_path: Path) -> None:
+    live = load_bag_arrays(demo_run.bag)
     res = replay_bag(
-        result.bag,
+        demo_run.bag,
         tmp_path / "replayed",
         ReplayOptions(params={"particles": PARTICLES, "seed": SEED}, plots=False),
     )
@@ -76,13 +89,14 @@ def test_replay_reproduces_the_live_estimates(
     common, i_live, i_rep = np.intersect1d(live.est_t, replayed.est_t, return_indices=True)
     assert common.size == live.est_t.size  # every live estimate answers a replayed stamp
     diff = np.linalg.norm(live.est_pose[i_live, :2] - replayed.est_pose[i_rep, :2], axis=1)
-    noise = 0.01  # edge scenario position noise std (m)
-    assert float(np.mean(diff)) < noise
-    # Until the first pose the live node dropped (backlog), both ran the same computation.
+    # Until the first pose the live node dropped (backlog), both ran the same computation;
+    # after a drop the live filter ran a catch-up step and the particle sets differ.
     dropped = ~np.isin(replayed.est_t, live.est_t)
     first_drop = int(np.argmax(dropped)) if np.any(dropped) else replayed.est_t.size
     same = i_rep < first_drop
     assert np.max(diff[same], initial=0.0) < 1e-9
+    # Replay (no drops) tracks the truth within the observation noise (0.01 m std).
+    assert res.metrics["position_rmse_over_noise"] < 1.0
 
 
 def test_demo_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[Any]) -> None:

@@ -127,7 +127,7 @@ def core_edge(listener_node: Any, module_processes: Any) -> Recording:
     rec = Recording()
     subs = _subscribe_all(listener_node, rec, {})
     filt = module_processes.start(
-        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=200", *FILTER_ARGS
+        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=100", *FILTER_ARGS
     )
     sim = module_processes.start(
         "sim_publisher.node",
@@ -163,7 +163,9 @@ def bullet_push(listener_node: Any, module_processes: Any, core_edge: Recording)
         "-p",
         "duration:=2.0",
         "-p",
-        "wait_for_subscribers:=15.0",
+        "wait_for_subscribers:=30.0",
+        "-p",
+        "min_subscribers:=2",  # this listener and the filter
     )
     # the sim publishes the latched /scenario before the filter exists
     deadline = time.monotonic() + 20.0
@@ -171,7 +173,7 @@ def bullet_push(listener_node: Any, module_processes: Any, core_edge: Recording)
         rt.spin_once(listener_node, timeout_sec=0.05)
     assert rec.msgs["/scenario"], sim.log()
     filt = module_processes.start(
-        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=200", *FILTER_ARGS
+        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=100", *FILTER_ARGS
     )
     _record(listener_node, rec, subs, (sim, filt), until_s=40.0, graph_after=20)
     filt.terminate()
@@ -201,7 +203,7 @@ def test_run_completes_and_filter_survives(run: str, request: pytest.FixtureRequ
     n_obs = len(rec.msgs["/object/pose"])
     n_est = len(rec.msgs["/dbcslam/pose"])
     assert n_obs > 100
-    assert n_est > 0.3 * n_obs, (n_est, n_obs, rec.diagnostics())
+    assert n_est > 0.2 * n_obs, (n_est, n_obs, rec.diagnostics())
 
 
 @pytest.mark.parametrize("run", RUNS)

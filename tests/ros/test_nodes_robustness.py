@@ -187,3 +187,35 @@ def test_filter_rejects_bad_parameters(node_process: Any, param: str, needle: st
     assert filt.proc.wait(20) == 2
     assert needle in filt.log()
     assert "Traceback" not in filt.log()
+
+
+def test_lost_filter_is_reinitialised(node_process: Any, fake_sim: FakeSim) -> None:
+    """The object 'teleports' 0.5 m (e.g. the tracker re-acquired another marker): after a
+    few gated poses the filter is declared lost, reset, and tracks the new position."""
+    from dbcslam_core.synthetic import edge_trajectory
+
+    filt = node_process(
+        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=50",
+        "-p", "diagnostics_period:=0.2", "-p", "marker_particles:=0",
+    )  # fmt: skip
+    sim = fake_sim
+    assert sim.wait_for(lambda v: v.get("scenario") == "edge", 20.0), filt.log()
+    traj = edge_trajectory(0, duration=1.2)
+    shifted = np.array(traj.obs, copy=True)
+    shifted[60:, 0] += 0.5
+
+    class Shifted:
+        u = traj.u
+        obs = shifted
+
+    _play(sim, Shifted, range(traj.n_steps), T0, {})
+    assert sim.wait_for(lambda v: int(v.get("rejected_diverged", "0")) >= 1, 5.0), (
+        sorted(sim.values().items()),
+        filt.log(),
+    )
+    sim.spin(0.3)
+    last = sim.poses_out[-1]
+    k = round((last.header.stamp.sec * NS + last.header.stamp.nanosec - T0) / (NS // 100))
+    assert k > 80
+    assert abs(last.pose.pose.position.x - (traj.q[k, 0] + 0.5)) < 0.05
+    assert filt.proc.poll() is None

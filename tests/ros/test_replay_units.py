@@ -192,3 +192,19 @@ def test_cli_replay_exit_codes(
     assert cli_main(["replay", str(not_a_bag), "-o", str(tmp_path / "y")]) == 2
     assert "junk.mcap" in capsys.readouterr().err
     assert cli_main(["replay", str(edge_bag), "-o", str(tmp_path / "z"), "--particles", "0"]) == 2
+
+
+def test_unusable_scenario_gives_no_estimates_error(tmp_path: Path, edge_bag: Path) -> None:
+    from dbcslam_ros.bag import jazzy_typestore, serialize
+
+    broken = tmp_path / "badscenario"
+    string = jazzy_typestore().types["std_msgs/msg/String"]
+    with open_bag(edge_bag) as src, BagWriter(broken) as dst:
+        for raw in src.messages():
+            dst.add_topic(raw.topic, raw.msgtype, raw.qos)
+            data = raw.data
+            if raw.topic == "/scenario":
+                data = serialize(string(data="scenario: [not, a, mapping"))[1]
+            dst.write(raw.topic, data, raw.log_time_ns)
+    with pytest.raises(BagError, match="no estimates"):
+        replay_bag(broken, tmp_path / "o", ReplayOptions(params={"particles": 10}, plots=False))

@@ -28,6 +28,8 @@ class RecordingFilter:
 
     def __init__(self, scenario: Scenario, config: Any, rng: Any, extensions: Any = ()) -> None:
         self.scenario = scenario
+        self.q = np.zeros((2, scenario.nq))
+        self.v = np.ones((2, scenario.nq))
         self.inits: list[dict[str, Any]] = []
         self.steps: list[tuple[Any, FilterInput]] = []
         RecordingFilter.instances.append(self)
@@ -196,9 +198,12 @@ def test_catch_up_runs_the_last_steps_of_the_gap(fake_filter: Any) -> None:
     steps = fake_filter.instances[-1].steps
     assert [inp.wrench[0] for _, inp in steps] == [3.0, 4.0]  # steps (30, 40], (40, 50]
     np.testing.assert_allclose([inp.joints[0] for _, inp in steps], [0.04, 0.05])
-    # the first run step starts from the joints the filter remembers (previous pose)
-    assert all(inp.joints_start is None for _, inp in steps)
+    np.testing.assert_allclose(steps[0][1].joints_start, (0.03, 0.0))  # no jaw jump
+    assert steps[1][1].joints_start is None
     assert s.skipped_steps == 3
+    # before the run steps the particles coasted over the 3 skipped steps at their velocity
+    np.testing.assert_allclose(fake_filter.instances[-1].q[:, :2], 0.03)
+    assert -np.pi < fake_filter.instances[-1].q[0, 2] <= np.pi
 
 
 def test_long_gap_reinitialises(fake_filter: Any) -> None:

@@ -1,0 +1,344 @@
+"""`dbcslam discrepancy`: bags -> `dbcslam_core.discrepancy.analyse` -> JSON, Markdown, PNGs.
+
+Reads ONLY /scenario, /object/pose, /object/wrench, /joint_states (never /truth/*), resamples
+them onto the scenario time grid (poses linearly interpolated across gaps of at most two
+steps, else missing; wrench held; joints interpolated), runs the analysis and writes:
+
+* the contract JSON (`--json FILE`),
+* ``<stem>.md`` beside it (human report) and ``<stem>_*.png`` figures,
+* ``<stem>_model.yaml``: the extended model (``extensions: [{effect, params}]``) for the filter
+  node parameter ``model_file`` / ``dbcslam replay --model`` (``extensions: []`` for none).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dbcslam_core.discrepancy import Analysis, DiscrepancyConfig, Run, analyse
+from dbcslam_core.errors import DbcSlamError
+from dbcslam_core.scenario import Scenario
+from dbcslam_ros.bag import find_bags, open_bag
+from dbcslam_ros.errors import BagError, UsageError
+
+__all__ = ["load_run", "run_discrepancy", "write_report"]
+
+F64 = NDArray[np.float64]
+NS = 1_000_000_000
+INPUT_TOPICS = ("/scenario", "/object/pose", "/object/wrench", "/joint_states")
+
+
+def _stamp(header: Any) -> int:
+    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
+
+
+def _yaw(q: Any) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def load_run(path: str | Path) -> Run:
+    """One bag -> `Run` on the scenario grid. Raises BagError naming the file."""
+    p = Path(path)
+    scenario: Scenario | None = None
+    poses: list[tuple[int, float, float, float]] = []
+    wrenches: list[tuple[int, float, float, float]] = []
+    joints: list[tuple[int, dict[str, float]]] = []
+    try:
+        with open_bag(p) as reader:
+            counts = reader.counts()
+            for raw, msg in reader.decoded(t for t in INPUT_TOPICS if counts.get(t)):
+                if raw.topic == "/scenario" and scenario is None:
+                    try:
+                        scenario = Scenario.from_yaml(str(msg.data))
+                    except (DbcSlamError, ValueError, TypeError, KeyError) as err:
+                        problem = f"{p}: /scenario does not parse: {err}"
+                        raise BagError(problem) from err
+                elif raw.topic == "/object/pose":
+                    pz = msg.pose
+                    poses.append(
+                        (
+                            _stamp(msg.header),
+                            float(pz.position.x),
+                            float(pz.position.y),
+                            _yaw(pz.orientation),
+                        )
+                    )
+                elif raw.topic == "/object/wrench":
+                    w = msg.wrench
+                    wrenches.append(
+                        (_stamp(msg.header), float(w.force.x), float(w.force.y), float(w.torque.z))
+                    )
+                elif raw.topic == "/joint_states":
+                    names = [str(n) for n in msg.name]
+                    pos = [float(x) for x in msg.position]
+                    joints.append((_stamp(msg.header), dict(zip(names, pos, strict=False))))
+    except BagError:
+        raise
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        msg_ = f"{p}: cannot read the bag: {err}"
+        raise BagError(msg_) from err
+    if scenario is None:
+        msg_ = f"{p}: no /scenario message (the analysis needs the scenario model)"
+        raise BagError(msg_)
+    if len(poses) < 10:
+        msg_ = f"{p}: only {len(poses)} /object/pose messages (need >= 10)"
+        raise BagError(msg_)
+    return _resample(p, scenario, poses, wrenches, joints)
+
+
+def _resample(
+    p: Path,
+    sc: Scenario,
+    poses: list[tuple[int, float, float, float]],
+    wrenches: list[tuple[int, float, float, float]],
+    joints: list[tuple[int, dict[str, float]]],
+) -> Run:
+    arr = np.asarray(sorted(poses), dtype=np.float64)
+    ts = (arr[:, 0] - arr[0, 0]) / NS
+    t0 = int(arr[0, 0])
+    dt = float(sc.dt)
+    n = math.floor(ts[-1] / dt + 1e-6) + 1
+    grid = np.arange(n, dtype=np.float64) * dt
+    nq = sc.nq
+    vals = arr[:, 1:4].copy()
+    vals[:, 2] = np.unwrap(vals[:, 2])
+    obs = np.stack([np.interp(grid, ts, vals[:, c]) for c in range(3)], axis=-1)[:, :nq]
+    # missing where the nearest poses on both sides are more than two steps apart
+    right = np.clip(np.searchsorted(ts, grid - 1e-9), 0, ts.size - 1)
+    left = np.clip(right - 1, 0, ts.size - 1)
+    exact = np.abs(ts[right] - grid) < 1e-6
+    gap = ts[right] - ts[left]
+    obs[~exact & (gap > 2.0 * dt + 1e-9)] = np.nan
+    u = np.zeros((n, nq))
+    if wrenches:
+        w = np.asarray(sorted(wrenches), dtype=np.float64)
+        tw = (w[:, 0] - t0) / NS
+        idx = np.searchsorted(tw, grid + 1e-6, side="right") - 1
+        ok = idx >= 0
+        u[ok] = w[idx[ok], 1 : 1 + nq]
+    names = list(sc.joints)
+    env = np.zeros((n, len(names)))
+    if names:
+        rows = [
+            (s, [d.get(nm, np.nan) for nm in names]) for s, d in sorted(joints, key=lambda x: x[0])
+        ]
+        rows = [r for r in rows if np.all(np.isfinite(r[1]))]
+        if not rows:
+            msg_ = f"{p}: no /joint_states with the joints {names} of the scenario"
+            raise BagError(msg_)
+        tj = (np.asarray([r[0] for r in rows], dtype=np.float64) - t0) / NS
+        jv = np.asarray([r[1] for r in rows], dtype=np.float64)
+        env = np.stack([np.interp(grid, tj, jv[:, c]) for c in range(len(names))], axis=-1)
+    if not np.all(np.isfinite(arr)):
+        msg_ = f"{p}: /object/pose holds non-finite values"
+        raise BagError(msg_)
+    return Run(name=str(p), scenario=sc, t=np.asarray(grid, np.float64), obs=obs, u=u, env=env)
+
+
+def _load_all(args: Sequence[str | Path], say: Callable[[str], None]) -> list[Run]:
+    runs: list[Run] = []
+    for a in args:
+        for bag in find_bags(a):
+            runs.append(load_run(bag))
+            say(f"read {bag} ({runs[-1].t.size} samples)")
+    return runs
+
+
+def run_discrepancy(
+    bags: Sequence[str | Path],
+    heldout: Sequence[str | Path] = (),
+    json_path: str | Path | None = None,
+    *,
+    config: DiscrepancyConfig | None = None,
+    plots: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[Analysis, dict[str, Any]]:
+    """Load, analyse, write the report files; returns the analysis and the JSON dict."""
+    say = progress or (lambda s: print(s, file=sys.stderr, flush=True))
+    train = _load_all(bags, say)
+    held = _load_all(heldout, say)
+    if not train:
+        msg = "no bags to fit on"
+        raise UsageError(msg)
+    kinds = {r.scenario.kind for r in train + held}
+    if len(kinds) > 1:
+        msg = f"all bags must share one scenario kind, got {sorted(kinds)}"
+        raise UsageError(msg)
+    cfg = config or DiscrepancyConfig()
+    try:
+        result = analyse(train, held, cfg, progress=say)
+    except DbcSlamError as err:
+        msg = f"analysis failed on the given bags: {err}"
+        raise UsageError(msg) from err
+    data = result.to_dict()
+    data["bags"] = {"fit": [r.name for r in train], "heldout": [r.name for r in held]}
+    if json_path is not None:
+        files = write_report(result, data, Path(json_path), plots=plots)
+        data["files"] = [str(f) for f in files]
+        Path(json_path).write_text(json.dumps(data, indent=2) + "\n")
+    return result, data
+
+
+def model_yaml(result: Analysis) -> str:
+    """The extended model file text (``extensions: [...]``)."""
+    import yaml
+
+    exts = [e.to_dict() for e in result.model_extensions()]
+    header = f"# dbcslam discrepancy: verdict {result.verdict}\n"
+    return header + str(yaml.safe_dump({"extensions": exts}, sort_keys=False))
+
+
+def write_report(
+    result: Analysis, data: dict[str, Any], json_path: Path, *, plots: bool = True
+) -> list[Path]:
+    """Write the JSON, model YAML, Markdown and PNG figures; returns the written paths."""
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    stem = json_path.with_suffix("")
+    files: list[Path] = [json_path]
+    model = Path(f"{stem}_model.yaml")
+    model.write_text(model_yaml(result))
+    files.append(model)
+    data["model_file"] = str(model)
+    figs = _figures(result, stem) if plots else []
+    files += figs
+    md = Path(f"{stem}.md")
+    md.write_text(_markdown(result, data, figs))
+    files.append(md)
+    json_path.write_text(json.dumps(data, indent=2) + "\n")
+    return files
+
+
+def _markdown(result: Analysis, data: dict[str, Any], figs: Sequence[Path]) -> str:
+    r = result.residuals
+    lines = [
+        "# Model discrepancy report",
+        "",
+        f"**Verdict: `{result.verdict}`**",
+        "",
+        result.evidence,
+        "",
+        f"Held-out data: {result.heldout_description}.",
+        "",
+        "## 1. What the nominal model gets wrong",
+        "",
+        f"Open-loop rollouts of {result.config.horizon} steps ({r['horizon_s']} s) from "
+        "states estimated from the observations (local quadratic fit), nominal parameters "
+        "(friction: prior mean of the scenario's candidates).",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+        f"| one-step bias (x, y[, yaw]) | {r['bias_one_step']} |",
+        f"| bias at the horizon | {r['bias_horizon']} |",
+        f"| position RMSE by horizon (first, last) | {r['rmse_by_horizon'][0]:.6f}, "
+        f"{r['rmse_by_horizon'][-1]:.6f} m |",
+        f"| RMSE growth | {r['growth_per_s']} m/s |",
+        f"| corr(residual, velocity) | {r['corr_velocity']} |",
+        f"| corr(residual, position) | {r['corr_position']} |",
+        f"| RMSE in contact / free | {r['rmse_in_contact']} / {r['rmse_free']} m |",
+        f"| best lag of predicted vs observed motion | {r['best_lag_starts']} starts |",
+        "",
+        "## 2. Candidate effects (fitted on the training data, scored held out)",
+        "",
+        "| effect | params | stderr | held-out RMSE (m) | delta loglik | penalty | clear | note |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for c in result.candidates:
+        ps = ", ".join(f"{k}={v:.4g}" for k, v in c.params.items())
+        se = ", ".join(f"{v:.2g}" for v in c.stderr.values())
+        lines.append(
+            f"| {c.effect} | {ps} | {se} | {c.heldout_rmse:.6f} | {c.delta_loglik:.1f} | "
+            f"{c.penalty:.1f} | {'yes' if c.clear else 'no'} | {c.note} |"
+        )
+    lines += [
+        "",
+        f"Nominal held-out RMSE {result.nominal.heldout_rmse:.6f} m, NLL "
+        f"{result.nominal.heldout_nll:.3f} nats per residual.",
+        "",
+        "## 3. Extended model",
+        "",
+        f"Model file: `{data.get('model_file', '')}` (filter node parameter `model_file`, "
+        "`dbcslam replay --model FILE`).",
+        "",
+        "## 4. Gain",
+        "",
+        f"gain (nominal / extended held-out RMSE) = {result.gain:.3f}",
+        "",
+    ]
+    for f in figs:
+        lines.append(f"![{f.stem}]({f.name})")
+    return "\n".join(lines) + "\n"
+
+
+def _figures(result: Analysis, stem: Path) -> list[Path]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover - matplotlib is a dependency
+        return []
+    out: list[Path] = []
+    p = result.nominal_prediction
+    e = result.extended_prediction
+    dt_h = np.arange(1, p.resid.shape[1] + 1)
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    pos = np.sqrt(np.nansum(p.resid[..., :2] ** 2, axis=-1))
+    ax = axes[0, 0]
+    ax.plot(dt_h, np.sqrt(np.nanmean(pos**2, axis=0)) * 1e3, label="nominal")
+    if e is not None:
+        pe = np.sqrt(np.nansum(e.resid[..., :2] ** 2, axis=-1))
+        ax.plot(dt_h, np.sqrt(np.nanmean(pe**2, axis=0)) * 1e3, label="extended")
+    ax.set_xlabel("rollout step")
+    ax.set_ylabel("position RMSE (mm)")
+    ax.set_title("growth over the horizon")
+    ax.legend()
+    ax = axes[0, 1]
+    ax.plot(p.t, p.resid[:, -1, 0] * 1e3, ".", ms=3, label="x")
+    ax.plot(p.t, p.resid[:, -1, 1] * 1e3, ".", ms=3, label="y")
+    ax.set_xlabel("start time (s)")
+    ax.set_ylabel("residual at horizon (mm)")
+    ax.set_title("nominal residuals over the run(s)")
+    ax.legend()
+    ax = axes[1, 0]
+    ax.plot(np.linalg.norm(p.v0[:, :2], axis=-1), pos[:, -1] * 1e3, ".", ms=3)
+    ax.set_xlabel("speed at start (m/s)")
+    ax.set_ylabel("|residual| at horizon (mm)")
+    ax.set_title("vs velocity")
+    ax = axes[1, 1]
+    ax.plot(p.q0[:, 0], pos[:, -1] * 1e3, ".", ms=3, label="contact" if True else "")
+    ax.plot(p.q0[~p.in_contact, 0], pos[~p.in_contact, -1] * 1e3, "x", ms=3, label="free")
+    ax.set_xlabel("x at start (m)")
+    ax.set_ylabel("|residual| at horizon (mm)")
+    ax.set_title("vs position / contact")
+    ax.legend()
+    fig.tight_layout()
+    f1 = Path(f"{stem}_residuals.png")
+    fig.savefig(f1, dpi=90)
+    plt.close(fig)
+    out.append(f1)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    names = [c.effect for c in result.candidates]
+    vals = [max(c.delta_loglik, 0.1) for c in result.candidates]
+    ax.barh(names, vals, color=["C2" if c.clear else "C7" for c in result.candidates])
+    ax.set_xscale("log")
+    ax.set_xlabel("held-out log-likelihood gain over nominal (nats)")
+    ax.set_title(f"candidates (verdict: {result.verdict})")
+    fig.tight_layout()
+    f2 = Path(f"{stem}_candidates.png")
+    fig.savefig(f2, dpi=90)
+    plt.close(fig)
+    out.append(f2)
+    return out
+
+
+def config_with(cfg: DiscrepancyConfig, **kw: Any) -> DiscrepancyConfig:
+    """A copy of `cfg` with the given fields replaced (None values ignored)."""
+    return replace(cfg, **{k: v for k, v in kw.items() if v is not None})
