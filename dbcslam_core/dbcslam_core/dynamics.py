@@ -505,8 +505,9 @@ class PlanarModel:
         `mu_pair` (per friction pair, including the support pair if the scenario has one);
         mu_surface [...]: support friction coefficient (see `surface_mu`). With support
         friction the step is re-linearised at its own result up to `support_iterations`
-        times (until v' changes by < `support_tol`). Raises SolverError if the LCP solver
-        fails.
+        times (until v' changes by < `support_tol`, per batch element); an element that has
+        not converged by then keeps its last iterate (the step linearised at the previous
+        iterate). Raises SolverError if the LCP solver fails.
         """
         mus = self.surface_mu(mu_pair, mu_surface)
         r = self._step_once(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, v_lin=None)
@@ -520,9 +521,7 @@ class PlanarModel:
         n = int(np.prod(lead))
         nv, nc = self.nq, self.nc
 
-        def flat(x: ArrayLike | None, width: int) -> F64 | None:
-            if x is None:
-                return None
+        def flat(x: ArrayLike, width: int) -> F64:
             a = np.asarray(x, dtype=np.float64)
             return np.broadcast_to(a, (*lead, width)).reshape(n, width)
 
@@ -531,13 +530,12 @@ class PlanarModel:
         v_f = flat(state.v, nv)
         u_f = flat(u, nv)
         e0_f = flat(np.zeros(n_env) if env is None else env, n_env)
-        e1_f = flat(env_next if env_next is not None else env, n_env) if env is not None else e0_f
-        mp_f = flat(mu_pair, len(self.scenario.friction.pairs))
+        e1_f = e0_f if env_next is None else flat(env_next, n_env)
+        mp_f = None if mu_pair is None else flat(mu_pair, len(self.scenario.friction.pairs))
         mu_f: MuSpec | None = mu
         if mu is not None and not callable(mu):
-            mu_f = flat(np.broadcast_to(np.asarray(mu, dtype=np.float64), (*lead, nc)), nc)
+            mu_f = flat(mu, nc)
         mus_f = np.broadcast_to(mus, lead).reshape(n)
-        assert q_f is not None and v_f is not None and u_f is not None and e0_f is not None
         out = {f.name: np.array(getattr(r, f.name)).reshape(n, -1) for f in fields(StepResult)}
         g0 = out["v"].copy()
         x1 = g0.copy()
@@ -548,7 +546,7 @@ class PlanarModel:
                 State(q_f[active], v_f[active]),
                 u_f[active],
                 e0_f[active],
-                None if e1_f is None else e1_f[active],
+                e1_f[active],
                 mu=mu_f[active] if isinstance(mu_f, np.ndarray) else mu_f,
                 mu_pair=None if mp_f is None else mp_f[active],
                 mus=mus_f[active],

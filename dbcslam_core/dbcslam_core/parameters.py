@@ -165,6 +165,15 @@ class FrictionMap:
         self._sums = [np.zeros((self.n_cells, p.size)) for p in self._priors]
         self._weight = [np.zeros(self.n_cells) for _ in self._priors]
 
+    def copy(self) -> FrictionMap:
+        """An independent copy (same grid, same accumulated evidence)."""
+        out = FrictionMap.__new__(FrictionMap)
+        out.s_min, out.cell_size, out.n_cells = self.s_min, self.cell_size, self.n_cells
+        out._priors = [p.copy() for p in self._priors]
+        out._sums = [a.copy() for a in self._sums]
+        out._weight = [a.copy() for a in self._weight]
+        return out
+
     @property
     def n_pairs(self) -> int:
         """Number of friction pairs."""

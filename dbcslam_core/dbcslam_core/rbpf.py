@@ -266,7 +266,8 @@ class DbcSlamFilter:
         self.scenario = scenario
         self.config = config or FilterConfig()
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.model = PlanarModel(scenario, extensions)
+        self.extensions = tuple(extensions)
+        self.model = PlanarModel(scenario, self.extensions)
         cfg = self.config
         self.nq = scenario.nq
         self.n_c = scenario.n_contacts
@@ -672,14 +673,7 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
-        tmp = FrictionMap(
-            self.scenario.friction.prior,
-            self.config.map_range[0],
-            self.config.map_range[1],
-            self.config.map_cell,
-        )
-        tmp._sums = [a.copy() for a in self.map._sums]
-        tmp._weight = [a.copy() for a in self.map._weight]
+        tmp = self.map.copy()
         w, _ = normalise_log_weights(self.log_w)
         self._commit(tmp, self._hist, w)
         return tmp.view()
@@ -733,4 +727,6 @@ class DbcSlamFilter:
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:
         """A fresh filter with the same scenario and rng and a modified config."""
-        return DbcSlamFilter(self.scenario, replace(self.config, **changes), self.rng)
+        return DbcSlamFilter(
+            self.scenario, replace(self.config, **changes), self.rng, self.extensions
+        )

@@ -392,7 +392,7 @@ class FilterNode:
             d2 = float(r @ np.linalg.solve(cov, r))
         except np.linalg.LinAlgError:
             return False
-        return bool(np.isfinite(d2)) and d2 > gate * gate
+        return bool(not np.isfinite(d2) or d2 > gate * gate)  # inf: estimate blew up
 
     # -- outputs -----------------------------------------------------------------------------
     def _publish(self, res: StampedEstimate, received: float) -> None:

@@ -383,8 +383,28 @@ def replay_bag(
         "warnings": {text: n for text, n in warnings[:10]},
         "params": {k: v for k, v in sorted(filt.params.items())},
     }
+    if counts.get("/dbcslam/pose", 0):
+        metrics["replay"]["recorded_estimates"] = _compare_recorded(src, dst, opts.salvage)
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     return ReplayResult(src, dst, n_poses, estimates, wall, rejected, metrics, plots)
+
+
+def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:
+    """How the estimates recorded in the source bag (e.g. a live run) compare with the
+    replayed ones at the same stamps (m; differences of the planar position)."""
+    from dbcslam_ros.evaluate import load_bag_arrays
+
+    before = load_bag_arrays(src, salvage=salvage)
+    after = load_bag_arrays(out)
+    _, i, j = np.intersect1d(before.est_t, after.est_t, return_indices=True)
+    diff = np.linalg.norm(before.est_pose[i, :2] - after.est_pose[j, :2], axis=1)
+    return {
+        "recorded": int(before.est_t.size),
+        "replayed": int(after.est_t.size),
+        "same_stamps": int(i.size),
+        "position_diff_mean_m": round(float(diff.mean()), 6) if diff.size else None,
+        "position_diff_max_m": round(float(diff.max()), 6) if diff.size else None,
+    }
 
 
 def _products(out: Path, opts: ReplayOptions) -> tuple[dict[str, Any], tuple[Path, ...]]:

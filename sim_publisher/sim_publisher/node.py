@@ -239,7 +239,10 @@ class SimNode:
         self.frame = str(p["frame_id"])
         cls = rt.message_class
         sensor = rt.qos_profile("sensor_data", depth=10)
-        reliable = rt.qos_profile("default", depth=100)
+        # Reliable truth: in fast mode the whole run may be queued before a reader catches up.
+        reliable = rt.qos_profile(
+            "default", depth=max(100, self.source.n_ticks + 1) if self.fast else 100
+        )
         self.pubs: dict[str, Any] = {
             "/scenario": node.create_publisher(
                 cls("std_msgs/msg/String"), "/scenario", rt.qos_profile("latched")

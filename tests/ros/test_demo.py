@@ -63,7 +63,7 @@ def test_demo_records_a_bag_and_summarises(demo_run: DemoRun) -> None:
     assert counts["/object/pose"] >= 195
     assert counts["/scenario"] == 1
     assert counts["/dbcslam/markers"] == counts["/dbcslam/pose"] == metrics["estimates"]
-    assert metrics["estimates"] >= 0.3 * counts["/object/pose"]
+    assert metrics["estimates"] >= 0.2 * counts["/object/pose"]
     # Smoke bound only: live accuracy depends on how many poses a loaded machine drops.
     assert metrics["position_rmse_over_noise"] < 5.0
     printed = demo_run.printed
@@ -82,21 +82,36 @@ def test_replay_reproduces_the_live_estimates(demo_run: DemoRun, tmp_path: Path)
         ReplayOptions(params={"particles": PARTICLES, "seed": SEED}, plots=False),
     )
     replayed = load_bag_arrays(res.out)
-    # Replay answers every pose; live may have dropped a few it could not keep up with.
+    # Replay answers every recorded pose (after the first, which initialises the filter).
     assert replayed.est_t.size == res.poses - 1
-    assert live.est_t.size <= replayed.est_t.size
-    assert live.est_t.size >= replayed.est_t.size - 0.5 * res.poses
+    assert set(replayed.est_t.tolist()) == set(live.obs_t[1:].tolist())
+    # Live answered at most as many; on a loaded machine it drops poses it cannot keep up
+    # with, and a best-effort pose may reach the filter but not the recorder (or vice versa).
+    recorded = np.isin(live.est_t, live.obs_t[1:])
+    assert np.count_nonzero(recorded) <= replayed.est_t.size
+    assert np.count_nonzero(recorded) >= 0.2 * replayed.est_t.size
     common, i_live, i_rep = np.intersect1d(live.est_t, replayed.est_t, return_indices=True)
-    assert common.size == live.est_t.size  # every live estimate answers a replayed stamp
+    assert common.size == np.count_nonzero(recorded)
     diff = np.linalg.norm(live.est_pose[i_live, :2] - replayed.est_pose[i_rep, :2], axis=1)
-    # Until the first pose the live node dropped (backlog), both ran the same computation;
-    # after a drop the live filter ran a catch-up step and the particle sets differ.
-    dropped = ~np.isin(replayed.est_t, live.est_t)
-    first_drop = int(np.argmax(dropped)) if np.any(dropped) else replayed.est_t.size
-    same = i_rep < first_drop
+    # Until both saw a different sequence of poses (the live node dropped one for backlog, or
+    # answered one the recorder missed), they ran the very same computation.
+    diverged = [replayed.est_t.size]
+    only_replay = ~np.isin(replayed.est_t, live.est_t)
+    if np.any(only_replay):
+        diverged.append(int(np.argmax(only_replay)))
+    if live.est_t.size and live.est_t[0] <= live.obs_t[0]:
+        diverged.append(0)  # live initialised on a pose the recorder missed
+    if not np.all(recorded):
+        first_unrecorded = live.est_t[int(np.argmax(~recorded))]
+        diverged.append(int(np.searchsorted(replayed.est_t, first_unrecorded)))
+    same = i_rep < min(diverged)
     assert np.max(diff[same], initial=0.0) < 1e-9
     # Replay (no drops) tracks the truth within the observation noise (0.01 m std).
     assert res.metrics["position_rmse_over_noise"] < 1.0
+    summary = res.metrics["replay"]["recorded_estimates"]
+    assert summary["recorded"] == live.est_t.size
+    assert summary["same_stamps"] == common.size
+    assert summary["position_diff_max_m"] == pytest.approx(float(np.max(diff)), abs=1e-6)
 
 
 def test_demo_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[Any]) -> None:

@@ -28,7 +28,7 @@ def _stamp(msg: Any) -> int:
 
 
 def test_every_scenario_has_a_curated_bag() -> None:
-    assert [p.name for p in find_bags(BAGS)] == ["edge", "gripper", "push"]
+    assert {"edge", "gripper", "push"} <= {p.name for p in find_bags(BAGS)}
     assert (BAGS / "README.md").is_file()
 
 

@@ -102,6 +102,13 @@ def _run(args: argparse.Namespace) -> int:
             f"{len(res.plots)} plots"
         )
         print(metrics_table(res.metrics))
+        rec = res.metrics["replay"].get("recorded_estimates")
+        if rec is not None and rec["same_stamps"]:
+            print(
+                f"vs the {rec['recorded']} estimates recorded in the source: "
+                f"{rec['same_stamps']} at the same stamps, position difference mean "
+                f"{rec['position_diff_mean_m']:.2e} m, max {rec['position_diff_max_m']:.2e} m"
+            )
     return 0
 
 
