@@ -1,0 +1,227 @@
+"""FilterNode in-process on a fake node: configuration, backlog policy, failure handling.
+
+No DDS: the fake node records publications; callbacks are called directly, so the queueing
+and catch-up rules are checked deterministically.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from dbcslam_core.synthetic import edge_trajectory
+from dbcslam_ros import filter_node as fn
+from dbcslam_ros import runtime as rt
+from dbcslam_ros.convert import array_from_msg, pose_stamped, wrench_stamped
+
+NS = 1_000_000_000
+T0 = 10 * NS
+
+
+class FakeLogger:
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, text: str, **_: Any) -> None:
+        self.lines.append(("info", text))
+
+    def warning(self, text: str, **_: Any) -> None:
+        self.lines.append(("warning", text))
+
+    def error(self, text: str, **_: Any) -> None:
+        self.lines.append(("error", text))
+
+
+class FakePublisher:
+    def __init__(self, topic: str, sink: list[tuple[str, Any]]) -> None:
+        self.topic = topic
+        self.sink = sink
+
+    def publish(self, msg: Any) -> None:
+        self.sink.append((self.topic, msg))
+
+
+class FakeNode:
+    """The subset of the runtime Node that FilterNode uses."""
+
+    def __init__(self, overrides: dict[str, Any] | None = None) -> None:
+        self.overrides = overrides or {}
+        self.logger = FakeLogger()
+        self.published: list[tuple[str, Any]] = []
+        self.subs: dict[str, Any] = {}
+        self.timers: list[tuple[float, Any]] = []
+
+    def get_logger(self) -> FakeLogger:
+        return self.logger
+
+    def declare_parameter(self, name: str, default: Any, _descriptor: Any = None) -> Any:
+        return SimpleNamespace(value=self.overrides.get(name, default))
+
+    def create_publisher(self, _cls: Any, topic: str, _qos: Any) -> FakePublisher:
+        return FakePublisher(topic, self.published)
+
+    def create_subscription(self, _cls: Any, topic: str, cb: Any, _qos: Any) -> Any:
+        self.subs[topic] = cb
+        return topic
+
+    def create_timer(self, period: float, cb: Any) -> Any:
+        self.timers.append((period, cb))
+        return cb
+
+    def topics(self) -> list[str]:
+        return [t for t, _ in self.published]
+
+    def last(self, topic: str) -> Any:
+        return [m for t, m in self.published if t == topic][-1]
+
+
+def _string(text: str) -> Any:
+    return rt.message_class("std_msgs/msg/String")(data=text)
+
+
+@pytest.fixture
+def traj() -> Any:
+    return edge_trajectory(0, duration=0.6)
+
+
+@pytest.fixture
+def node(traj: Any) -> tuple[FakeNode, fn.FilterNode]:
+    fake = FakeNode({"particles": 30, "marker_particles": 5})
+    filt = fn.FilterNode(fake)
+    fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
+    return fake, filt
+
+
+def _tick(node: tuple[FakeNode, fn.FilterNode], traj: Any, k: int, process: bool = True) -> None:
+    fake, filt = node
+    stamp = T0 + k * NS // 100
+    fx, fy = (float(v) for v in traj.u[k])
+    fake.subs["/object/wrench"](wrench_stamped(stamp, fx, fy))
+    x, y = (float(v) for v in traj.obs[k])
+    fake.subs["/object/pose"](pose_stamped(stamp, x, y))
+    if process:
+        filt.process_pending()
+
+
+def test_poses_before_the_scenario_are_counted() -> None:
+    fake = FakeNode()
+    filt = fn.FilterNode(fake)
+    fake.subs["/object/pose"](pose_stamped(T0, 0.0, 0.0))
+    assert filt.rejected_before_scenario == 1
+    filt.publish_diagnostics()
+    status = fake.last("/diagnostics").status[0]
+    assert "waiting for /scenario" in status.message
+
+
+def test_outputs_pose_first_and_well_formed(node: Any, traj: Any) -> None:
+    fake, filt = node
+    for k in range(20):
+        _tick(node, traj, k)
+    assert filt.published == 19  # the first pose initialises
+    step_topics = fake.topics()[:7]
+    assert step_topics[0] == "/dbcslam/pose"
+    assert set(step_topics) == set(fn.OUTPUT_TYPES) - {"/diagnostics"}
+    modes = array_from_msg(fake.last("/dbcslam/contact_modes"))
+    np.testing.assert_allclose(modes.sum(axis=1), 1.0)
+    filt.publish_diagnostics()
+    values = {kv.key: kv.value for kv in fake.last("/diagnostics").status[0].values}
+    assert values["estimates_published"] == "19"
+    assert float(values["ess"]) > 0 and float(values["latency_ms_mean"]) >= 0
+
+
+def test_backlog_keeps_the_newest_pose_and_catches_up(node: Any, traj: Any) -> None:
+    _fake, filt = node
+    _tick(node, traj, 0)
+    _tick(node, traj, 1)
+    for k in range(2, 8):  # six poses arrive while the filter is busy
+        _tick(node, traj, k, process=False)
+    filt.process_pending()
+    assert filt.backlog_dropped == 5
+    assert filt.session is not None
+    assert filt.session.rejected["backlog"] == 5
+    last = filt.last_estimate
+    assert last is not None and last.stamp_ns == T0 + 7 * NS // 100
+    assert last.model_steps == 2  # catch_up_steps
+    assert filt.session.skipped_steps == 4
+    # back in step: the next pose runs its single step exactly
+    _tick(node, traj, 8)
+    assert filt.last_estimate is not None and filt.last_estimate.model_steps == 1
+
+
+def test_same_scenario_keeps_the_session_new_one_reconfigures(node: Any, traj: Any) -> None:
+    fake, filt = node
+    session = filt.session
+    fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
+    assert filt.session is session
+    from dbcslam_core.scenario import gripper_scenario
+
+    fake.subs["/scenario"](_string(gripper_scenario().to_yaml()))
+    assert filt.session is not session
+    assert filt.scenario is not None and filt.scenario.kind == "gripper"
+    fake.subs["/scenario"](_string("scenario: [not, a, mapping"))
+    assert filt.scenario.kind == "gripper"  # bad YAML ignored, counted
+    assert filt.session is not None and filt.session.rejected["bad_scenario"] == 1
+
+
+def test_filter_failure_is_counted_and_resets(
+    node: Any, traj: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _fake, filt = node
+    for k in range(5):
+        _tick(node, traj, k)
+    assert filt.session is not None
+
+    def boom(*_: Any, **__: Any) -> Any:
+        raise FloatingPointError("synthetic failure")
+
+    monkeypatch.setattr(filt.session, "add_pose", boom)
+    _tick(node, traj, 5)
+    assert filt.session.rejected["filter_error"] == 1
+    assert filt.session.resets == 1
+    monkeypatch.undo()
+    _tick(node, traj, 6)  # re-initialises
+    _tick(node, traj, 7)
+    assert filt.last_estimate is not None and filt.last_estimate.stamp_ns == T0 + 7 * NS // 100
+
+
+def test_non_finite_estimate_is_never_published(
+    node: Any, traj: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fake, filt = node
+    for k in range(5):
+        _tick(node, traj, k)
+    n_pose = fake.topics().count("/dbcslam/pose")
+
+    def nan_messages(*_: Any, **__: Any) -> Any:
+        raise ValueError("estimate field pose has non-finite values")
+
+    monkeypatch.setattr(fn, "estimate_messages", nan_messages)
+    _tick(node, traj, 5)
+    assert fake.topics().count("/dbcslam/pose") == n_pose
+    assert filt.session is not None and filt.session.rejected["nan_estimate"] == 1
+    assert filt.session.resets == 1
+
+
+def test_nan_inputs_do_not_reach_the_filter(node: Any, traj: Any) -> None:
+    fake, filt = node
+    _tick(node, traj, 0)
+    bad = pose_stamped(T0 + NS // 100, 0.0, 0.0)
+    bad.pose.position.x = math.nan
+    fake.subs["/object/pose"](bad)
+    bad_w = wrench_stamped(T0 + NS // 100, 0.0, 0.0)
+    bad_w.wrench.force.x = math.inf
+    fake.subs["/object/wrench"](bad_w)
+    filt.process_pending()
+    assert filt.session is not None and filt.session.rejected["nan"] == 2
+    for k in range(1, 5):
+        _tick(node, traj, k)
+    assert filt.published == 4
+    counts: dict[str, int] = defaultdict(int)
+    for topic, _ in fake.published:
+        counts[topic] += 1
+    assert counts["/dbcslam/pose"] == 4
