@@ -79,6 +79,8 @@ class ReducedSolution:
     of the free velocity (e.g. force noise) reaches v_next under this mode assignment
     (identity when every contact is separated; constrained directions are absorbed by the
     impulses, sliding friction follows the normal impulse).
+    impulse_response (..., 2, C, nv) or None: d (ln, lt) / d v_free (N s per m/s), computed
+    only when `solve_reduced(..., impulse_sensitivity=True)`; zero for separated contacts.
     """
 
     v_next: FloatArray
@@ -88,6 +90,7 @@ class ReducedSolution:
     vt: FloatArray
     score: FloatArray
     response: FloatArray
+    impulse_response: FloatArray | None = None
 
 
 def solve_reduced(
@@ -106,6 +109,7 @@ def solve_reduced(
     eps_rel: float = 1e-10,
     groups: npt.ArrayLike | None = None,
     mass: npt.ArrayLike | None = None,
+    impulse_sensitivity: bool = False,
 ) -> ReducedSolution:
     """Solve the reduced (mode-fixed) time-stepping dynamics for all assignments at once.
 
@@ -133,6 +137,9 @@ def solve_reduced(
     Assignments with more equality rows than velocity dofs are statically indeterminate: only
     their velocity inequalities are scored (checking their impulse inequalities exactly would
     need a feasibility LP over the null space of the impulses; not done).
+
+    impulse_sensitivity: also return d (ln, lt) / d v_free (`ReducedSolution.impulse_response`),
+    e.g. to propagate force process noise into a predicted contact force.
     """
     sc = scales or ViolationScales()
     md = np.asarray(modes, dtype=np.int64)
@@ -169,6 +176,7 @@ def solve_reduced(
     lt = np.zeros((n_m, n_c))
     dv = np.zeros((n_m, nv))
     response = np.tile(np.eye(nv), (n_m, 1, 1))
+    imp_resp = np.zeros((n_m, 2, n_c, nv)) if impulse_sensitivity else None
     if n_a:
         # All-separated entries keep v' = v_free (identity response). The others are solved
         # over their own non-separated contacts only: each row's active contacts are moved to
@@ -183,7 +191,7 @@ def solve_reduced(
         n_max = int((~is_sep).sum(axis=1).max())
         idx = np.argsort(is_sep, axis=1, kind="stable")[:, :n_max]  # (M, n_max)
         idx3 = idx[..., None]
-        ln_s, lt_s, dv_s, resp_s = _solve_active(
+        ln_s, lt_s, dv_s, resp_s, dlam_s = _solve_active(
             np.take_along_axis(m_rows, idx, axis=1),
             vf=flat(vf, (nv,)),
             im=flat(im, (nv,)),
@@ -199,6 +207,12 @@ def solve_reduced(
         lt[rows[:, None], idx] = lt_s
         dv[rows] = dv_s
         response[rows] = resp_s
+        if imp_resp is not None:
+            sub = imp_resp[rows]  # (M, 2, C, nv)
+            r_ix = np.arange(rows.size)[:, None]
+            sub[r_ix, 0, idx] = dlam_s[:, :n_max]
+            sub[r_ix, 1, idx] = dlam_s[:, n_max:]
+            imp_resp[rows] = sub
     ln = ln.reshape(*lead, n_c)
     lt = lt.reshape(*lead, n_c)
     dv = dv.reshape(*lead, nv)
@@ -247,6 +261,9 @@ def solve_reduced(
         vt=np.asarray(vt, dtype=np.float64),
         score=np.asarray(score, dtype=np.float64),
         response=np.asarray(response, dtype=np.float64),
+        impulse_response=None
+        if imp_resp is None
+        else np.asarray(imp_resp.reshape(*lead, 2, n_c, nv), dtype=np.float64),
     )
 
 
@@ -262,8 +279,9 @@ def _solve_active(
     mu_act: FloatArray,
     eps_rel: float,
     mass: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Impulses, dv and response of the reduced system on the active contacts (rows (M,))."""
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Impulses, dv, response and d lambda / d v_free (M, 2Ca, nv) of the reduced system on
+    the active contacts (rows (M,))."""
     n_a = m_a.shape[-1]
     nv = vf.shape[-1]
     w = np.concatenate([jn_act, jt_act], axis=-2)  # (M, 2Ca, nv)
@@ -299,7 +317,7 @@ def _solve_active(
     wt_sol = np.swapaxes(wm, -1, -2) @ sol_all  # M^-1 W^T sol
     dv = wt_sol[..., 0]
     response = np.eye(nv) + wt_sol[..., 1:]
-    return lam[..., :n_a], lam[..., n_a:], dv, response
+    return lam[..., :n_a], lam[..., n_a:], dv, response, sol_all[..., 1:]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -622,8 +622,11 @@ def _grid_search(
         trio = np.asarray([best / (1.0 + step / best), best, best * (1.0 + step / best)])
     else:
         trio = np.asarray([best - step, best, best + step])
-    ll3 = _train_ll(pred, make(trio))
+    trio = np.clip(trio, lo, hi)
     d1, d2 = float(trio[1] - trio[0]), float(trio[2] - trio[1])
+    if not (d1 > 0.0 and d2 > 0.0):  # at a bound of the search range
+        return best, float("inf"), best_ll
+    ll3 = _train_ll(pred, make(trio))
     c2 = 2.0 * ((ll3[2] - ll3[1]) / d2 - (ll3[1] - ll3[0]) / d1) / (d1 + d2)
     stderr = float("inf")
     if c2 < 0:

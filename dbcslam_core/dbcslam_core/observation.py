@@ -28,6 +28,7 @@ import numpy.typing as npt
 from dbcslam_core.errors import ModelError
 
 __all__ = [
+    "ForceObservation",
     "GaussianProposal",
     "JointSmoother",
     "LinearObservation",
@@ -62,6 +63,36 @@ class PoseObservation:
     x: float
     y: float
     yaw: float | None = None
+
+
+@dataclass(frozen=True)
+class ForceObservation:
+    """Measured contact force (N, world frame) that the body exerts on an obstacle, e.g. the
+    pusher's F/T reading ``/pusher/wrench`` (force on the pusher, world axes).
+
+    fx, fy: force components (N) averaged over / at the end of the filter step it is passed
+    with. obstacle: name of the instrumented obstacle (`Scenario.obstacles`); None = the
+    scenario's only disk obstacle (the pusher). std: measurement noise std (N) per axis;
+    None = `FilterConfig.force_noise`.
+
+    Model (see `rbpf.DbcSlamFilter.step`): for a joint mode hypothesis h and friction
+    hypothesis b, the reduced dynamics give the contact impulses (ln, lt) of the step; the
+    predicted force is f_hb = -sum_c (n_c ln_c + t_c lt_c) / dt over the obstacle's
+    contacts (n into the body, t = (n_y, -n_x)), and f ~ N(f_hb, std^2 I).
+    """
+
+    fx: float
+    fy: float
+    obstacle: str | None = None
+    std: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.fx) and math.isfinite(self.fy)):
+            msg = f"force observation must be finite, got ({self.fx}, {self.fy}) N"
+            raise ModelError(msg)
+        if self.std is not None and not (math.isfinite(self.std) and self.std > 0.0):
+            msg = f"force observation std must be > 0 N, got {self.std}"
+            raise ModelError(msg)
 
 
 @dataclass(frozen=True)

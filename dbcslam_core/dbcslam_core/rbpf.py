@@ -34,6 +34,7 @@ from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.geometry import contact_kinematics
 from dbcslam_core.observation import (
+    ForceObservation,
     JointSmoother,
     LinearObservation,
     PoseObservation,
@@ -55,7 +56,7 @@ from dbcslam_core.resampling import (
     make_resampler,
     normalise_log_weights,
 )
-from dbcslam_core.scenario import Scenario
+from dbcslam_core.scenario import Disk, Scenario
 from dbcslam_core.transition import TransitionParams, mode_transition, soft_modes
 
 __all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
@@ -99,6 +100,11 @@ class FilterConfig:
       map_lag: fixed lag (steps) of the smoothed friction committed to the map.
     * joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint
       readings.
+    * smoothed_joint_velocity: obstacle velocities from the joint smoother's velocity
+      estimate (True) or from differences of smoothed positions (False).
+    * force_noise (N): std per axis of a `ForceObservation` (measurement noise plus the force
+      equivalent of the process noise and model error), used when the observation carries
+      no std of its own.
     """
 
     particles: int = 500
@@ -127,6 +133,8 @@ class FilterConfig:
     map_cell: float = 0.02
     map_lag: int = 20
     joint_accel_std: float = 0.3
+    force_noise: float = 0.2
+    smoothed_joint_velocity: bool = True
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -156,6 +164,9 @@ class FilterConfig:
             raise ModelError(msg)
         if self.resampler not in RESAMPLERS:
             msg = f"resampler must be one of {sorted(RESAMPLERS)}, got {self.resampler!r}"
+            raise ModelError(msg)
+        if not (math.isfinite(self.force_noise) and self.force_noise > 0.0):
+            msg = f"force_noise must be > 0 N, got {self.force_noise}"
             raise ModelError(msg)
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
@@ -285,6 +296,11 @@ class DbcSlamFilter:
             n_vertices=len(scenario.body.vertices),
         )
         self._contact_pair = np.asarray(scenario.contact_pairs, dtype=np.int64)
+        obstacles = scenario.obstacles
+        self._obstacle_names = tuple(o.name for o in obstacles)
+        self._contact_obstacle = np.asarray([c.obstacle for c in pcs], dtype=np.int64)
+        disks = [i for i, o in enumerate(obstacles) if isinstance(o, Disk)]
+        self._default_force_obstacle: int | None = disks[0] if len(disks) == 1 else None
         fr = scenario.friction
         self.n_pairs = len(fr.pairs)
         self._n_cand = [len(c) for c in fr.candidates]
@@ -400,11 +416,27 @@ class DbcSlamFilter:
         self.initialize(qm, qs, joints=joints)
 
     # ------------------------------------------------------------------------ the step
-    def step(self, observation: PoseObservation | None, inputs: FilterInput) -> Estimate:
+    def step(
+        self,
+        observation: PoseObservation | None,
+        inputs: FilterInput,
+        force: ForceObservation | None = None,
+    ) -> Estimate:
         """One filter step of dt: predict with `inputs`, update with `observation` (None =
-        predict only) and return the estimate at the end of the step."""
+        predict only) and the optional contact force reading `force` (e.g. `/pusher/wrench`
+        at the end of the step) and return the estimate at the end of the step.
+
+        The force enters the likelihood per (particle, joint mode hypothesis, friction
+        hypothesis): f ~ N(f_hb, std^2 I) with f_hb the force the reduced solution of the
+        hypothesis exerts on the obstacle (`ForceObservation`). It is treated as
+        conditionally independent of the sampled process noise given the hypothesis (the
+        force equivalent of the process noise is folded into `FilterConfig.force_noise`), so
+        it is a factor of the discrete hypothesis weights: it multiplies into the proposal
+        weights of (h, b), the particle weight, and the closed-form mode/friction posterior.
+        """
         cfg = self.config
         lin = None if observation is None else self._obs_model.linearize(observation)
+        force_obst = None if force is None else self._force_obstacle(force)
         u = np.zeros(self.nq)
         wr = np.asarray(inputs.wrench, dtype=np.float64)
         if wr.size < self.nq - (1 if self.nq == 3 and wr.size == 2 else 0) or wr.size > 3:
@@ -425,9 +457,17 @@ class DbcSlamFilter:
             if self._joints_prev is None:
                 self._joints_prev = self._joint_filter.reset(joints)
             self._auto_initialize(lin, self._joints_prev)
+        was_tracking = self._joint_filter.initialised and self._joint_filter.r > 0.0
         joints = self._joint_filter.update(joints)
-        env0 = joints if self._joints_prev is None else self._joints_prev
-        env_vel = (joints - env0) / self.dt
+        if cfg.smoothed_joint_velocity and was_tracking:
+            # the smoother's velocity, not the difference of two smoothed positions: the
+            # difference carries ~2x the position noise / dt, which sticking contacts turn
+            # into spurious impulses (and contact forces)
+            env_vel = self._joint_filter.x[:, 1].copy()
+            env0 = joints - self.dt * env_vel
+        else:
+            env0 = joints if self._joints_prev is None else self._joints_prev
+            env_vel = (joints - env0) / self.dt
         self._joints_prev = joints
         self._step += 1
         dt = self.dt
@@ -498,6 +538,7 @@ class DbcSlamFilter:
             scales=self._scales,
             groups=self._layout.obstacle,
             mass=None if m_eff is None else m_eff[pi],
+            impulse_sensitivity=force is not None,
         )
         v_h = sol.v_next  # (N, B, nv)
         l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
@@ -513,6 +554,10 @@ class DbcSlamFilter:
         if cfg.warmup_steps > 0:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         sig2 = (self._sigma_v * boost) ** 2
+        if force is not None and force_obst is not None:
+            log_alpha = log_alpha + self._force_log_likelihood(
+                force, force_obst, sol, kin.normal[pi], sig2
+            )
         resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
         prop = gaussian_proposal(
@@ -578,7 +623,11 @@ class DbcSlamFilter:
         # 8. weights, marginal likelihood, map history, resampling
         w_prev, _ = normalise_log_weights(self.log_w)
         with np.errstate(divide="ignore"):
-            log_ml = float(_logsumexp(np.log(w_prev) + incr, axis=0)) if lin is not None else 0.0
+            log_ml = (
+                float(_logsumexp(np.log(w_prev) + incr, axis=0))
+                if lin is not None or force is not None
+                else 0.0
+            )
         self.log_w = self.log_w + incr
         if not np.any(np.isfinite(self.log_w)):
             msg = (
@@ -620,6 +669,58 @@ class DbcSlamFilter:
         )
 
     # ------------------------------------------------------------------------ helpers
+    def _force_obstacle(self, force: ForceObservation) -> int:
+        """Index of the obstacle a force reading refers to (validated)."""
+        if force.obstacle is None:
+            if self._default_force_obstacle is None:
+                msg = (
+                    f"force observation without obstacle name, but scenario kind "
+                    f"{self.scenario.kind!r} has no single disk obstacle (pusher); name one of "
+                    f"{list(self._obstacle_names)}"
+                )
+                raise ModelError(msg)
+            return self._default_force_obstacle
+        if force.obstacle not in self._obstacle_names:
+            msg = (
+                f"force observation names obstacle {force.obstacle!r}; valid obstacles are "
+                f"{list(self._obstacle_names)}"
+            )
+            raise ModelError(msg)
+        return self._obstacle_names.index(force.obstacle)
+
+    def _force_log_likelihood(
+        self,
+        force: ForceObservation,
+        obstacle: int,
+        sol: Any,
+        normal: FloatArray,
+        sig2: FloatArray,
+    ) -> FloatArray:
+        """log N(f; f_hb, std^2 I + G diag(sig2) G^T) (N, B) of a force reading.
+
+        sol: the reduced solution (impulses (N, B, C) and their sensitivity to the free
+        velocity); normal (N, C, 2) contact normals (into the body, world frame); sig2 (nv,)
+        the velocity process-noise variances of the step. G = d f_hb / d v_free: the process
+        noise is force noise on the body, which the obstacle's contact impulses absorb in
+        constrained directions, so it widens the predicted force (std^2 alone would make the
+        reading over-confident about hypotheses whose velocity is off by the process noise).
+        """
+        sel = self._contact_obstacle == obstacle
+        std = self.config.force_noise if force.std is None else force.std
+        n = normal[:, None, sel, :]  # (N, 1, Cs, 2)
+        t = np.stack([n[..., 1], -n[..., 0]], axis=-1)
+        f_pred = -np.sum(n * sol.ln[..., sel, None] + t * sol.lt[..., sel, None], axis=-2)
+        f_pred = f_pred / self.dt  # (N, B, 2)
+        r = np.asarray([force.fx, force.fy]) - f_pred
+        cov = np.broadcast_to(std * std * np.eye(2), (*r.shape[:-1], 2, 2))
+        if sol.impulse_response is not None:
+            dln = sol.impulse_response[..., 0, sel, :]  # (N, B, Cs, nv)
+            dlt = sol.impulse_response[..., 1, sel, :]
+            g = -np.einsum("nacx,nbcv->nbxv", n, dln) - np.einsum("nacx,nbcv->nbxv", t, dlt)
+            g = g / self.dt  # (N, B, 2, nv)
+            cov = cov + (g * sig2) @ np.swapaxes(g, -1, -2)
+        return gaussian_log_density(r, cov)
+
     def _pair_marginals(self, fric_joint: FloatArray) -> FloatArray:
         """(P, B) joint friction belief -> (P, pairs, Kmax) per-pair marginals (zero-padded)."""
         n_p = fric_joint.shape[0]
