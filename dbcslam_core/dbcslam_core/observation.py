@@ -250,17 +250,45 @@ class JointSmoother:
     their positions at the start and end of each step define the obstacle position and velocity.
     Raw readings with std `noise` would turn into velocity noise of ~noise * sqrt(2) / dt, which
     the contact equalities would transmit as spurious impulses; this filter (white acceleration
-    noise `accel_std`, m/s^2) returns smoothed positions. noise == 0 passes readings through.
+    noise `accel_std`, m/s^2) returns smoothed positions and velocities (`velocity`).
+    noise == 0 passes readings through.
+
+    maneuver_accel_std (m/s^2, optional): a second filter with this (large) acceleration noise
+    runs alongside; when the smooth filter's normalised innovation squared, averaged
+    exponentially with factor `maneuver_memory`, exceeds `maneuver_threshold` (a start, stop
+    or turn of the joint), the smooth filter is re-started from the agile one. This keeps the
+    velocity of constant-speed motions precise without lagging behind starts and stops.
     """
 
-    def __init__(self, n_joints: int, dt: float, noise: float, accel_std: float = 1.0) -> None:
+    def __init__(
+        self,
+        n_joints: int,
+        dt: float,
+        noise: float,
+        accel_std: float = 1.0,
+        *,
+        maneuver_accel_std: float | None = None,
+        maneuver_threshold: float = 4.0,
+        maneuver_memory: float = 0.7,
+    ) -> None:
         self.n = n_joints
         self.dt = float(dt)
         self.r = float(noise) ** 2
         self.q_a = float(accel_std) ** 2
+        self.q_m = None if maneuver_accel_std is None else float(maneuver_accel_std) ** 2
+        self.threshold = float(maneuver_threshold)
+        self.memory = float(maneuver_memory)
         self.x = np.zeros((n_joints, 2))
         self.p = np.zeros((n_joints, 2, 2))
+        self.xm = np.zeros((n_joints, 2))
+        self.pm = np.zeros((n_joints, 2, 2))
+        self.nis = np.zeros(n_joints)
         self.initialised = False
+
+    @property
+    def velocity(self) -> FloatArray:
+        """Smoothed joint velocities (m/s) after the last update."""
+        return np.asarray(self.x[:, 1].copy(), dtype=np.float64)
 
     def reset(self, position: npt.ArrayLike) -> FloatArray:
         """Start from a reading (velocity unknown: std 1 m/s). Returns the position."""
@@ -269,25 +297,41 @@ class JointSmoother:
         self.p = np.zeros((self.n, 2, 2))
         self.p[:, 0, 0] = self.r
         self.p[:, 1, 1] = 1.0
+        self.xm, self.pm = self.x.copy(), self.p.copy()
+        self.nis = np.zeros(self.n)
         self.initialised = True
         return np.asarray(self.x[:, 0].copy(), dtype=np.float64)
+
+    def _kf(
+        self, x: FloatArray, p: FloatArray, q_a: float, pos: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        dt = self.dt
+        f = np.array([[1.0, dt], [0.0, 1.0]])
+        qm = q_a * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+        x = x @ f.T
+        p = f @ p @ f.T + qm
+        s = p[:, 0, 0] + self.r
+        innov = pos - x[:, 0]
+        k = p[:, :, 0] / s[:, None]
+        x = x + k * innov[:, None]
+        p = p - k[:, :, None] * p[:, None, 0, :]
+        return x, p, innov * innov / s
 
     def update(self, position: npt.ArrayLike) -> FloatArray:
         """Predict one step dt and update with a reading; returns the smoothed positions."""
         pos = np.asarray(position, dtype=np.float64).reshape(self.n)
         if self.r <= 0.0 or not self.initialised:
             return self.reset(pos)
-        dt = self.dt
-        f = np.array([[1.0, dt], [0.0, 1.0]])
-        qm = self.q_a * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
-        x = self.x @ f.T
-        p = f @ self.p @ f.T + qm
-        s = p[:, 0, 0] + self.r
-        k = p[:, :, 0] / s[:, None]
-        x = x + k * (pos - x[:, 0])[:, None]
-        p = p - k[:, :, None] * p[:, None, 0, :]
-        self.x, self.p = x, p
-        return np.asarray(x[:, 0].copy(), dtype=np.float64)
+        self.x, self.p, nis = self._kf(self.x, self.p, self.q_a, pos)
+        if self.q_m is not None:
+            self.xm, self.pm, _ = self._kf(self.xm, self.pm, self.q_m, pos)
+            self.nis = self.memory * self.nis + (1.0 - self.memory) * nis
+            jump = self.nis > self.threshold
+            if np.any(jump):
+                self.x[jump] = self.xm[jump]
+                self.p[jump] = self.pm[jump]
+                self.nis[jump] = 0.0
+        return np.asarray(self.x[:, 0].copy(), dtype=np.float64)
 
 
 def _cholesky_small(a: FloatArray) -> FloatArray:

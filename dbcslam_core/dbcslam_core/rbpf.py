@@ -100,6 +100,8 @@ class FilterConfig:
       map_lag: fixed lag (steps) of the smoothed friction committed to the map.
     * joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint
       readings.
+    * joint_maneuver_accel_std: m/s^2, optional agile companion of the joint smoother that
+      takes over at starts / stops (`JointSmoother`); allows a small joint_accel_std.
     * smoothed_joint_velocity: obstacle velocities from the joint smoother's velocity
       estimate (True) or from differences of smoothed positions (False).
     * force_noise (N): std per axis of a `ForceObservation` (measurement noise plus the force
@@ -135,6 +137,7 @@ class FilterConfig:
     joint_accel_std: float = 0.3
     force_noise: float = 0.2
     smoothed_joint_velocity: bool = True
+    joint_maneuver_accel_std: float | None = None
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -199,6 +202,13 @@ class FilterConfig:
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
             }
+            if kind == "push":
+                # constant-speed pusher: a stiff joint smoother (the pusher's position and
+                # velocity enter sticking impulses and the predicted pusher force at 1/dt)
+                # with an agile companion for starts and stops
+                base["joint_accel_std"] = 0.01
+                base["joint_maneuver_accel_std"] = 3.0
+                base["force_noise"] = 0.1
         else:
             msg = f"no preset for scenario kind {kind!r}; valid kinds are edge, gripper, push"
             raise ModelError(msg)
@@ -350,7 +360,11 @@ class DbcSlamFilter:
         self._step = 0
         self._joints_prev: FloatArray | None = None
         self._joint_filter = JointSmoother(
-            len(scenario.joints), self.dt, scenario.noise.joint, cfg.joint_accel_std
+            len(scenario.joints),
+            self.dt,
+            scenario.noise.joint,
+            cfg.joint_accel_std,
+            maneuver_accel_std=cfg.joint_maneuver_accel_std,
         )
         self.q = np.zeros((cfg.particles, self.nq))
         self.v = np.zeros((cfg.particles, self.nq))
@@ -463,7 +477,7 @@ class DbcSlamFilter:
             # the smoother's velocity, not the difference of two smoothed positions: the
             # difference carries ~2x the position noise / dt, which sticking contacts turn
             # into spurious impulses (and contact forces)
-            env_vel = self._joint_filter.x[:, 1].copy()
+            env_vel = self._joint_filter.velocity
             env0 = joints - self.dt * env_vel
         else:
             env0 = joints if self._joints_prev is None else self._joints_prev

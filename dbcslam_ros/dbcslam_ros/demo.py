@@ -35,12 +35,14 @@ from pathlib import Path
 from typing import IO, Any
 
 from dbcslam_ros.errors import DbcSlamRosError, UsageError
+from dbcslam_ros.filter_node import LIVE_PARTICLES
 
 __all__ = ["DEFAULT_PARTICLES", "SCENARIOS", "DemoError", "DemoOptions", "DemoResult", "run_demo"]
 
 SCENARIOS: tuple[str, ...] = ("edge", "gripper", "push")
-#: Particles per scenario: few enough that the live node keeps up with 100 Hz here.
-DEFAULT_PARTICLES: dict[str, int] = {"edge": 200, "gripper": 80, "push": 80}
+#: Particles per scenario: the filter node's live defaults (few enough that it keeps up with
+#: the simulator at 100 Hz on an idle 2-core machine; see filter_node.LIVE_PARTICLES).
+DEFAULT_PARTICLES: dict[str, int] = LIVE_PARTICLES
 #: Particles drawn in /dbcslam/markers: building and sending 100 costs the live node ~3 ms
 #: per step (measured), time the filter needs to keep up.
 DEMO_MARKER_PARTICLES = 20

@@ -20,9 +20,18 @@ Metrics (JSON keys; SI units):
 * ``yaw_rmse_rad`` (polygon bodies) and ``yaw_rmse_over_noise``.
 * ``contact_accuracy`` (in contact or not), ``stick_slide_accuracy`` (over truly-in-contact
   entries; null if there were none), ``contact_mode_accuracy`` (argmax of the 4 modes).
-* ``friction``: per pair the final posterior over the candidates, the true value at the last
-  matched step, the candidate nearest to it and its final posterior ``p_true``;
+* ``friction``: per pair the final posterior over the candidates and its mean
+  ``posterior_mean`` (also without truth), and with ``/truth/friction`` the true value at
+  the last matched step, the candidate nearest to it and its final posterior ``p_true``;
   ``friction_p_true_min``: the minimum over pairs.
+* Measured contact flag (``/pusher/contact``, e.g. MIT push bags from ``dbcslam
+  import-mitpush``; used when the bag has no ``/truth/contact_modes``): Float64MultiArray
+  contacts x [separated, in_contact], one row per scenario contact in order, logged at its
+  stamp. ``contact_flag_agreement``: fraction of (matched step, contact) entries where
+  "P(not separated) > 0.5" equals the flag's "in contact" (``1 - data[c, 0] > 0.5``);
+  ``contact_flag_recall`` (over flagged in-contact entries), ``contact_flag_specificity``
+  (over flagged separated entries), ``contact_flag_in_contact_fraction`` and
+  ``contact_estimated_in_contact_fraction``, ``contact_flag_entries``.
 * ``friction_map_accuracy`` (edge only): over the cells the body truly slid across, the
   fraction whose final map probability of the true candidate exceeds 0.5.
 * ``estimates``, ``matched``, ``observations``; ``step_time_ms_mean`` (mean over the
@@ -48,6 +57,8 @@ from dbcslam_ros.errors import BagError
 
 __all__ = [
     "ESTIMATE_TOPICS",
+    "FLAG_TOPIC",
+    "PUSHER_WRENCH_TOPIC",
     "TRUTH_TOPICS",
     "BagArrays",
     "FrictionGrid",
@@ -69,10 +80,15 @@ ESTIMATE_TOPICS: tuple[str, ...] = (
     "/dbcslam/friction_map",
 )
 TRUTH_TOPICS: tuple[str, ...] = ("/truth/object/pose", "/truth/contact_modes", "/truth/friction")
+#: Measured (not simulated) contact flag and pusher force topics.
+FLAG_TOPIC = "/pusher/contact"
+PUSHER_WRENCH_TOPIC = "/pusher/wrench"
 _READ_TOPICS = (
     "/scenario",
     "/object/pose",
     "/diagnostics",
+    FLAG_TOPIC,
+    PUSHER_WRENCH_TOPIC,
     *ESTIMATE_TOPICS,
     *TRUTH_TOPICS,
 )
@@ -114,6 +130,9 @@ class BagArrays:
         truth_modes: (T', C) integer true modes aligned with truth_t (None if absent).
         truth_friction: (T', P) true coefficient per pair aligned with truth_t (None if absent).
         diagnostics: (stamp ns, key/values) of every /diagnostics message.
+        flag_t, flag: measured contact flag (/pusher/contact): stamps (log time) and (T'', C)
+            bool "in contact" per scenario contact (None if absent).
+        force_t, force: /pusher/wrench stamps and (T''', 3) [fx, fy, tau_z] (N, N m).
     """
 
     path: Path
@@ -131,6 +150,10 @@ class BagArrays:
     truth_modes: IntArray | None = None
     truth_friction: FloatArray | None = None
     diagnostics: list[tuple[int, dict[str, str]]] = field(default_factory=list)
+    flag_t: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    flag: NDArray[np.bool_] | None = None
+    force_t: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    force: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     counts: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -216,6 +239,8 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
     tmodes: list[tuple[int, FloatArray]] = []
     tfriction: list[tuple[int, FloatArray]] = []
     obs: list[tuple[int, tuple[float, float, float]]] = []
+    flags: list[tuple[int, FloatArray]] = []
+    forces: list[tuple[int, tuple[float, float, float]]] = []
     with open_bag(p, salvage=salvage) as reader:
         out.counts = reader.counts()
         for raw, msg in reader.decoded(t for t in _READ_TOPICS if out.counts.get(t)):
@@ -249,6 +274,13 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
                 tmodes.append((lt, _array(msg)))
             elif topic == "/truth/friction":
                 tfriction.append((lt, _array(msg)))
+            elif topic == FLAG_TOPIC:
+                flags.append((lt, _array(msg)))
+            elif topic == PUSHER_WRENCH_TOPIC:
+                w = msg.wrench
+                forces.append(
+                    (_stamp(msg.header), (float(w.force.x), float(w.force.y), float(w.torque.z)))
+                )
             elif topic == "/object/pose":
                 obs.append((_stamp(msg.header), _planar(msg.pose)))
             elif topic == "/diagnostics":
@@ -291,6 +323,15 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
     if obs:
         out.obs_t = np.asarray([s for s, _ in obs], dtype=np.int64)
         out.obs_pose = np.asarray([v for _, v in obs], dtype=np.float64)
+    if flags:
+        shape = flags[-1][1].shape
+        kept = [(lt, a) for lt, a in flags if a.shape == shape and a.ndim == 2 and shape[1] >= 1]
+        if kept:
+            out.flag_t = np.asarray([lt for lt, _ in kept], dtype=np.int64)
+            out.flag = np.stack([1.0 - a[:, 0] > 0.5 for _, a in kept])
+    if forces:
+        out.force_t = np.asarray([s for s, _ in forces], dtype=np.int64)
+        out.force = np.asarray([v for _, v in forces], dtype=np.float64)
     return out
 
 
@@ -401,8 +442,40 @@ def evaluate_bag(
     else:
         res["yaw_rmse_rad"] = None
     res.update(_mode_metrics(arr, i_est, i_tru))
+    if arr.truth_modes is None and arr.flag is not None:
+        res.update(contact_flag_metrics(arr, int(0.5 * dt * NS)))
     res.update(_friction_metrics(arr, i_est, i_tru))
     return res
+
+
+def contact_flag_metrics(arr: BagArrays, tol_ns: int) -> dict[str, Any]:
+    """Agreement of the estimated contact (P(not separated) > 0.5) with the measured flag.
+
+    Each estimate is matched to the flag stamped within ``tol_ns`` of it (see the module
+    docstring for the keys). Empty dict without a flag or mode estimates.
+    """
+    if arr.flag is None or arr.modes is None:
+        return {}
+    i_est, i_flag = match_stamps(arr.est_t, arr.flag_t, tol_ns)
+    out: dict[str, Any] = {"contact_flag_entries": int(i_est.size * arr.flag.shape[1])}
+    if arr.modes.shape[1] != arr.flag.shape[1]:
+        out["contact_flag_error"] = (
+            f"estimate has {arr.modes.shape[1]} contact(s), the flag {arr.flag.shape[1]}"
+        )
+        return out
+    if i_est.size == 0:
+        out["contact_flag_error"] = "no estimate stamp matches a /pusher/contact stamp"
+        return out
+    est = 1.0 - arr.modes[i_est, :, Mode.SEPARATED] > 0.5
+    flag = arr.flag[i_flag]
+    out["contact_flag_agreement"] = _round(float(np.mean(est == flag)), 4)
+    out["contact_flag_recall"] = _round(float(np.mean(est[flag])), 4) if flag.any() else None
+    out["contact_flag_specificity"] = (
+        _round(float(np.mean(~est[~flag])), 4) if (~flag).any() else None
+    )
+    out["contact_flag_in_contact_fraction"] = _round(float(np.mean(flag)), 4)
+    out["contact_estimated_in_contact_fraction"] = _round(float(np.mean(est)), 4)
+    return out
 
 
 def _diagnostics_summary(arr: BagArrays) -> dict[str, Any]:
@@ -449,11 +522,15 @@ def _friction_metrics(arr: BagArrays, i_est: IntArray, i_tru: IntArray) -> dict[
 
     out: dict[str, Any] = {"friction": [], "friction_p_true_min": None}
     sc = arr.scenario
-    if arr.friction is None or arr.truth_friction is None or sc is None:
+    if arr.friction is None or sc is None:
         return out
     pairs = list(sc.friction.pairs)
     final = arr.friction[i_est[-1]]
-    truth = arr.truth_friction[i_tru]
+    truth = (
+        arr.truth_friction[i_tru]
+        if arr.truth_friction is not None
+        else np.zeros((i_tru.size, 0), dtype=np.float64)
+    )
     p_true_all: list[float] = []
     for p, name in enumerate(pairs):
         cands = np.asarray(sc.friction.candidates[p], dtype=np.float64)
@@ -463,6 +540,7 @@ def _friction_metrics(arr: BagArrays, i_est: IntArray, i_tru: IntArray) -> dict[
             "pair": name,
             "candidates": [float(c) for c in cands],
             "final_posterior": [_round(float(v), 4) for v in final[p, : cands.size]],
+            "posterior_mean": _round(float(np.dot(final[p, : cands.size], cands)), 4),
         }
         if finite.size:
             true_value = float(finite[-1])
@@ -474,7 +552,12 @@ def _friction_metrics(arr: BagArrays, i_est: IntArray, i_tru: IntArray) -> dict[
         out["friction"].append(entry)
     if p_true_all:
         out["friction_p_true_min"] = _round(min(p_true_all), 4)
-    if sc.kind == "edge" and arr.friction_map is not None and arr.truth_modes is not None:
+    if (
+        sc.kind == "edge"
+        and arr.friction_map is not None
+        and arr.truth_modes is not None
+        and arr.truth_friction is not None
+    ):
         grid = arr.friction_map
         edges = grid.edges
         cands = np.asarray(sc.friction.candidates[0], dtype=np.float64)
@@ -531,6 +614,18 @@ def metrics_table(metrics: dict[str, Any]) -> str:
                 )
             )
         rows.append(("contact accuracy", fmt(metrics.get("contact_accuracy"), ".3f")))
+        if metrics.get("contact_flag_agreement") is not None:
+            rows.append(
+                (
+                    "contact vs measured flag",
+                    f"{metrics['contact_flag_agreement']:.3f} agreement (recall "
+                    f"{fmt(metrics.get('contact_flag_recall'), '.3f')}, specificity "
+                    f"{fmt(metrics.get('contact_flag_specificity'), '.3f')}; flag in contact "
+                    f"{fmt(metrics.get('contact_flag_in_contact_fraction'), '.2f')}, "
+                    "estimate "
+                    f"{fmt(metrics.get('contact_estimated_in_contact_fraction'), '.2f')})",
+                )
+            )
         rows.append(("stick/slide accuracy", fmt(metrics.get("stick_slide_accuracy"), ".3f")))
         rows.append(("mode accuracy", fmt(metrics.get("contact_mode_accuracy"), ".3f")))
         for entry in metrics.get("friction", []):
@@ -539,13 +634,10 @@ def metrics_table(metrics: dict[str, Any]) -> str:
                 for c, v in zip(entry["candidates"], entry["final_posterior"], strict=False)
             )
             true = entry.get("true_value")
-            rows.append(
-                (
-                    f"friction '{entry['pair']}'",
-                    f"final P(mu) {{{post}}}; true mu {fmt(true, 'g')} -> "
-                    f"P(true) {fmt(entry.get('p_true'), '.3f')}",
-                )
-            )
+            text = f"final P(mu) {{{post}}}, mean {fmt(entry.get('posterior_mean'), '.3f')}"
+            if true is not None:
+                text += f"; true mu {fmt(true, 'g')} -> P(true) {fmt(entry.get('p_true'), '.3f')}"
+            rows.append((f"friction '{entry['pair']}'", text))
         if metrics.get("friction_map_accuracy") is not None:
             rows.append(
                 (

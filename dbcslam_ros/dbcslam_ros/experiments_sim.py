@@ -5,9 +5,12 @@ For each scenario (edge, gripper, push) and seed 0..N-1: simulate with pybullet
 noise, the physics is deterministic), convert the run into a core ``Trajectory``
 (``sim_publisher.trajectory.to_trajectory``), run DBC-SLAM (``FilterConfig.preset(kind,
 particles=N)``, fed exactly as ``dbcslam_core.experiments.run_filter`` does: step k gets the
-observation k, the recorded mean wrench u[k-1] and the joints at t_k) and on the edge the
-fixed-friction baseline frozen to each candidate, score with ``dbcslam_core.metrics`` and
-write into ``--out`` (default ``dbcslam_core/doc/results/sim``):
+observation k, the recorded mean wrench u[k-1] and the joints at t_k; on push also the
+pusher's F/T reading at t_k, ``/pusher/wrench``, as a ``ForceObservation`` with the
+simulator's force noise std), on the edge also the fixed-friction baseline frozen to each
+candidate and on push also DBC-SLAM without the force reading (``dbcslam_no_force``);
+score with ``dbcslam_core.metrics`` and write into ``--out`` (default
+``dbcslam_core/doc/results/sim``):
 
 * ``experiments_sim.md`` / ``experiments_sim.json``: targets (median over seeds vs
   threshold, PASS/FAIL), medians per (scenario, method), per-seed values;
@@ -23,7 +26,8 @@ filter knows the object rests on a frictional table (with the simulator default,
 no ``surface.mu``, the filter's model is a frictionless table and the object coasts).
 
 Usage: ``python -m dbcslam_ros.experiments_sim [--out DIR] [--seeds N] [--particles N]
-[--duration S] [--scenarios edge,gripper,push] [--workers W] [--no-figures] [--quiet]``.
+[--duration S] [--scenarios edge,gripper,push] [--workers W] [--no-fixed]
+[--no-force-baseline] [--no-figures] [--quiet]``.
 Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 """
 
@@ -55,11 +59,14 @@ from dbcslam_core.experiments import (
     TargetCheck,
     evaluate_targets,
     run_dbcslam,
+    run_filter,
     run_fixed_friction,
     score,
     summarize,
 )
 from dbcslam_core.metrics import friction_map_accuracy, position_rmse, slid_cells
+from dbcslam_core.observation import ForceObservation, PoseObservation
+from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
 
 __all__ = [
@@ -78,6 +85,9 @@ __all__ = [
 ]
 
 F64 = NDArray[np.float64]
+
+NO_FORCE = "dbcslam_no_force"
+"""Method label of DBC-SLAM on push without the /pusher/wrench force reading."""
 
 DEFAULT_OUT = Path("dbcslam_core/doc/results/sim")
 SIM_SCENARIOS: tuple[str, ...] = ("edge", "gripper", "push")
@@ -140,6 +150,7 @@ class SimExperimentConfig:
     seeds: simulator and filter seeds; particles: per filter; scenarios: subset of
     ``SIM_SCENARIOS``; duration: simulated seconds (None = the simulator defaults: edge 5.5,
     gripper 4.0, push 2.5); fixed_friction: also run the edge fixed-friction baseline;
+    no_force_baseline: also run DBC-SLAM on push without the pusher force reading;
     workers: parallel processes; sim_overrides: simulator parameter overrides per scenario.
     """
 
@@ -148,6 +159,7 @@ class SimExperimentConfig:
     scenarios: tuple[str, ...] = SIM_SCENARIOS
     duration: float | None = None
     fixed_friction: bool = True
+    no_force_baseline: bool = True
     workers: int = 2
     sim_overrides: Mapping[str, Mapping[str, Any]] = field(
         default_factory=lambda: {k: dict(v) for k, v in SIM_OVERRIDES.items()}
@@ -191,8 +203,12 @@ def sim_trajectory(
     *,
     duration: float | None = None,
     overrides: Mapping[str, Any] | None = None,
-) -> tuple[Trajectory, Any]:
-    """Simulate `scenario` with pybullet for `seed`; returns (core Trajectory, sim params)."""
+) -> tuple[Trajectory, Any, F64]:
+    """Simulate `scenario` with pybullet for `seed`.
+
+    Returns (core Trajectory, sim params, observed pusher force (T, 2) in N: the force the
+    object exerts on the pusher at t_k, world axes, with sensor noise; zeros unless push).
+    """
     from sim_publisher.simulate import simulate
     from sim_publisher.trajectory import to_trajectory
 
@@ -200,7 +216,37 @@ def sim_trajectory(
     if duration is not None:
         kw["duration"] = duration
     run = simulate(scenario, seed=seed, **kw)
-    return to_trajectory(run), run.params
+    force = np.asarray(run.stack()["observed_pusher_wrench"][:, :2], dtype=np.float64)
+    return to_trajectory(run), run.params, force
+
+
+class ForceFedFilter:
+    """`DbcSlamFilter` adapter for `dbcslam_core.experiments.run_filter` that also passes the
+    pusher force reading of step k (row k of `force`, N) with std `std` (N per axis)."""
+
+    def __init__(self, filt: DbcSlamFilter, force: F64, std: float) -> None:
+        self.filt = filt
+        self.force = force
+        self.std = std
+        self._k = 0
+
+    def initialize(
+        self,
+        q_mean: Any,
+        q_std: Any,
+        v_mean: Any = None,
+        v_std: Any = None,
+        joints: Any = None,
+    ) -> None:
+        """Draw the initial particles (delegates)."""
+        self.filt.initialize(q_mean, q_std, v_mean, v_std, joints=joints)
+        self._k = 0
+
+    def step(self, observation: PoseObservation | None, inputs: FilterInput) -> Estimate:
+        """Filter step k (1, 2, ...) with the force reading at t_k."""
+        self._k += 1
+        fx, fy = (float(x) for x in self.force[self._k])
+        return self.filt.step(observation, inputs, ForceObservation(fx, fy, std=self.std))
 
 
 def _segments_truth(
@@ -254,17 +300,28 @@ def run_task(
 ) -> tuple[RunRecord, RunTrace, float]:
     """Simulate, filter and score one (scenario, seed, method); returns record, trace, wall s.
 
-    method: ``dbcslam`` or ``fixed:<candidate index>`` (edge fixed-friction baseline).
+    method: ``dbcslam`` (on push with the pusher force reading, std = the simulator's force
+    noise), ``dbcslam_no_force`` (kinematics only) or ``fixed:<candidate index>`` (edge
+    fixed-friction baseline).
     """
     t0 = time.perf_counter()
-    tr, params = sim_trajectory(scenario, seed, duration=duration, overrides=overrides)
-    if method == DBCSLAM:
+    tr, params, force = sim_trajectory(scenario, seed, duration=duration, overrides=overrides)
+    if method == DBCSLAM and scenario == "push":
+        cfg = FilterConfig.preset("push", particles=particles)
+        filt = DbcSlamFilter(tr.scenario, cfg, np.random.default_rng([seed, 1]))
+        fed = ForceFedFilter(filt, force, float(params.noise.force))
+        trace = run_filter(fed, tr, method=DBCSLAM, seed=seed, particles=particles)
+    elif method in (DBCSLAM, NO_FORCE):
         trace = run_dbcslam(tr, seed=seed, particles=particles)
+        trace = dataclasses.replace(trace, method=method)
     elif method.startswith("fixed:"):
         cand = int(method.split(":", 1)[1])
         trace = run_fixed_friction(tr, cand, seed=seed, particles=particles)
     else:
-        msg = f"unknown method {method!r}; valid: 'dbcslam' or 'fixed:<candidate index>'"
+        msg = (
+            f"unknown method {method!r}; valid: '{DBCSLAM}', '{NO_FORCE}' or "
+            "'fixed:<candidate index>'"
+        )
         raise ValueError(msg)
     if scenario == "edge":
         trace = dataclasses.replace(trace, rough_intervals=_rough_intervals(params))
@@ -286,6 +343,8 @@ def _tasks(cfg: SimExperimentConfig) -> list[tuple[str, int, str]]:
     for scen in cfg.scenarios:  # longest first helps the pool: edge has the baseline runs
         for seed in cfg.seeds:
             out.append((scen, seed, DBCSLAM))
+            if scen == "push" and cfg.no_force_baseline:
+                out.append((scen, seed, NO_FORCE))
             if scen == "edge" and cfg.fixed_friction:
                 n_cand = len(load_params("edge").friction_candidates)
                 out += [(scen, seed, f"fixed:{k}") for k in range(n_cand)]
@@ -468,6 +527,7 @@ def write_outputs(
             "scenarios": list(cfg.scenarios),
             "duration": cfg.duration,
             "fixed_friction": cfg.fixed_friction,
+            "no_force_baseline": cfg.no_force_baseline,
             "workers": cfg.workers,
             "sim_overrides": {k: dict(v) for k, v in cfg.sim_overrides.items()},
         },
@@ -523,6 +583,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--no-fixed", action="store_true", help="skip the fixed-friction baseline (edge)"
     )
+    p.add_argument(
+        "--no-force-baseline",
+        action="store_true",
+        help="skip DBC-SLAM without the pusher force reading (push)",
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
@@ -540,6 +605,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenarios=scenarios,
             duration=args.duration,
             fixed_friction=not args.no_fixed,
+            no_force_baseline=not args.no_force_baseline,
             workers=args.workers,
         )
     except ValueError as err:

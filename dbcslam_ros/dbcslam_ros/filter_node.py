@@ -6,7 +6,10 @@ The node configures itself from the latched ``/scenario`` (or parameter ``scenar
 a changed ``/scenario`` reconfigures it), feeds decoded inputs to a
 :class:`~dbcslam_ros.session.FilterSession` (synchronisation rules there) and publishes, for
 every processed pose, ``/dbcslam/pose`` first, then odometry, contact modes, friction, the
-friction map, markers; ``/diagnostics`` every ``diagnostics_period`` s.
+friction map, markers (at most one per ``marker_period`` of stamp time); ``/diagnostics``
+every ``diagnostics_period`` s. ``/pusher/wrench`` (push) is a force observation when
+``use_pusher_wrench`` is true. ``particles`` -1 (default) takes :data:`LIVE_PARTICLES` of the
+scenario kind.
 
 Robustness: a bad message (NaN, zero quaternion, stamp going backwards, unknown joint, ...) is
 logged (throttled), counted per reason in ``/diagnostics`` and dropped; the node keeps running.
@@ -49,7 +52,16 @@ from dbcslam_ros.convert import (
 from dbcslam_ros.errors import ParameterError
 from dbcslam_ros.session import FilterSession, StampedEstimate
 
-__all__ = ["OUTPUT_TYPES", "PARAMETERS", "FilterNode", "build_config", "load_extensions", "main"]
+__all__ = [
+    "LIVE_PARTICLES",
+    "OUTPUT_TYPES",
+    "PARAMETERS",
+    "FilterNode",
+    "build_config",
+    "live_particles",
+    "load_extensions",
+    "main",
+]
 
 #: Output topics and their types (contract table), in publication order.
 OUTPUT_TYPES: dict[str, str] = {
@@ -64,7 +76,11 @@ OUTPUT_TYPES: dict[str, str] = {
 
 # name: (default, description). Declared with these types and descriptions.
 PARAMETERS: dict[str, tuple[Any, str]] = {
-    "particles": (500, "number of particles of the Rao-Blackwellized filter"),
+    "particles": (
+        -1,
+        "number of particles of the Rao-Blackwellized filter (-1: live default per scenario "
+        "kind, LIVE_PARTICLES)",
+    ),
     "ess_threshold": (0.5, "resample when ESS < ess_threshold * particles (0..1)"),
     "prune_threshold": (-1.0, "prune mode hypotheses below this probability (<0: preset)"),
     "parameter_model": ("", "eq. (7) form: reuse | mixture | geometric ('' = preset)"),
@@ -77,15 +93,37 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "scenario_file": ("", "YAML scenario file used instead of the /scenario topic"),
     "model_file": ("", "model-extension YAML (from `dbcslam discrepancy`) to load"),
     "frame_id": ("world", "frame of the published estimates"),
-    "marker_particles": (100, "particles drawn in /dbcslam/markers (0: none)"),
+    "marker_particles": (100, "particles drawn in /dbcslam/markers (0: no markers)"),
+    "marker_period": (
+        0.1,
+        "s of stamp time between /dbcslam/markers messages (0: one per estimate)",
+    ),
     "diagnostics_period": (1.0, "seconds between /diagnostics messages"),
     "catch_up_steps": (
         2,
         "max model steps run for one pose after poses were dropped for backlog (>= 1)",
     ),
+    "use_pusher_wrench": (
+        True,
+        "use /pusher/wrench (F/T force on the pusher) as a force observation (push scenarios)",
+    ),
+    "force_noise": (-1.0, "N; std per axis of the pusher force observation (<0: preset)"),
     "max_gap": (1.0, "s; a longer gap between poses re-initialises the filter"),
     "reset_after": (0.5, "s; a jump back in time larger than this resets the filter"),
 }
+
+#: Default particle count per scenario kind (parameter ``particles`` = -1): chosen so that on
+#: an idle 2-core machine the filter keeps up with the simulator at 100 Hz (one core each)
+#: with margin; measured with ``python -m dbcslam_ros.bench_live --offline`` (README).
+LIVE_PARTICLES: dict[str, int] = {"edge": 200, "gripper": 80, "push": 80}
+#: Live default for a kind not in LIVE_PARTICLES.
+LIVE_PARTICLES_OTHER = 100
+
+
+def live_particles(kind: str) -> int:
+    """The filter node's default particle count for a scenario kind (LIVE_PARTICLES)."""
+    return LIVE_PARTICLES.get(kind, LIVE_PARTICLES_OTHER)
+
 
 #: A filter step slower than this (s) is logged as a warning.
 SLOW_STEP_S = 0.5
@@ -131,9 +169,11 @@ def load_extensions(path: str) -> tuple[ModelExtension, ...]:
 
 
 def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:
-    """FilterConfig for a scenario kind from the preset plus explicit parameter overrides."""
+    """FilterConfig for a scenario kind from the preset plus explicit parameter overrides
+    (``particles`` < 1: :func:`live_particles` of the kind)."""
+    particles = int(params["particles"])
     overrides: dict[str, Any] = {
-        "particles": int(params["particles"]),
+        "particles": particles if particles >= 1 else live_particles(kind),
         "ess_threshold": float(params["ess_threshold"]),
     }
     if float(params["prune_threshold"]) >= 0.0:
@@ -142,6 +182,8 @@ def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:
         overrides["parameter_model"] = str(params["parameter_model"])
     if float(params["contact_weight"]) >= 0.0:
         overrides["contact_weight"] = float(params["contact_weight"])
+    if float(params.get("force_noise", -1.0)) > 0.0:
+        overrides["force_noise"] = float(params["force_noise"])
     return FilterConfig.preset(kind, **overrides)
 
 
@@ -176,6 +218,7 @@ class FilterNode:
         self._outliers_in_row = 0
         self._exceed_in_row = 0
         self._rate_window: deque[float] = deque()
+        self._last_marker_ns: int | None = None
 
         sensor = rt.qos_profile("sensor_data", depth=50)
         cls = rt.message_class
@@ -199,6 +242,12 @@ class FilterNode:
                 cls("sensor_msgs/msg/JointState"), "/joint_states", self.on_joints, sensor
             ),
             node.create_subscription(
+                cls("geometry_msgs/msg/WrenchStamped"),
+                "/pusher/wrench",
+                self.on_pusher_wrench,
+                sensor,
+            ),
+            node.create_subscription(
                 cls("geometry_msgs/msg/PoseStamped"), "/object/pose", self.on_pose, sensor
             ),
         ]
@@ -217,7 +266,8 @@ class FilterNode:
     def _check_params(self) -> None:
         p = self.params
         checks = (
-            ("particles", int(p["particles"]) >= 1, ">= 1"),
+            ("particles", int(p["particles"]) >= 1 or int(p["particles"]) == -1, ">= 1 or -1"),
+            ("marker_period", float(p["marker_period"]) >= 0.0, ">= 0"),
             ("catch_up_steps", int(p["catch_up_steps"]) >= 1, ">= 1"),
             ("diagnostics_period", float(p["diagnostics_period"]) > 0.0, "> 0"),
             ("max_gap", float(p["max_gap"]) > 0.0, "> 0"),
@@ -283,6 +333,20 @@ class FilterNode:
             self.session.add_wrench(wrench_from_msg(msg))
         except InputRejected as err:
             self._reject(err.reason, f"rejected /object/wrench: {err}")
+
+    def on_pusher_wrench(self, msg: Any) -> None:
+        """Pusher F/T reading: a force observation (session rules), when enabled."""
+        if self.session is None or not bool(self.params["use_pusher_wrench"]):
+            return
+        try:
+            reading = wrench_from_msg(msg)
+        except InputRejected as err:
+            self._reject(err.reason, f"rejected /pusher/wrench: {err}")
+            return
+        try:
+            self.session.add_pusher_wrench(reading)
+        except InputRejected as err:  # counted by the session
+            self.log.warning(f"rejected /pusher/wrench: {err}", throttle_duration_sec=5.0)
 
     def on_joints(self, msg: Any) -> None:
         if self.session is None or self.scenario is None:
@@ -409,7 +473,7 @@ class FilterNode:
             self.pubs[topic].publish(m)
             if topic == "/dbcslam/pose":
                 self.latencies.append(time.monotonic() - received)
-        if int(self.params["marker_particles"]) > 0:
+        if int(self.params["marker_particles"]) > 0 and self._marker_due(res.stamp_ns):
             try:
                 self.pubs["/dbcslam/markers"].publish(self._markers(res))
             except (ValueError, DbcSlamError) as err:
@@ -425,6 +489,16 @@ class FilterNode:
         self.step_times.append(res.step_time_s)
         self.model_steps.append(res.model_steps)
         self.last_estimate = res
+
+    def _marker_due(self, stamp_ns: int) -> bool:
+        """At most one marker message per ``marker_period`` of stamp time (bag time in
+        replay), so that replays are deterministic; a jump back in time restarts the clock."""
+        period_ns = int(float(self.params["marker_period"]) * 1e9)
+        last = self._last_marker_ns
+        if last is not None and 0 <= stamp_ns - last < period_ns:
+            return False
+        self._last_marker_ns = stamp_ns
+        return True
 
     def _markers(self, res: StampedEstimate) -> Any:
         assert self.scenario is not None and self.session is not None
@@ -525,7 +599,8 @@ class FilterNode:
         ``rejected_<reason>``: inputs dropped per reason (``nan``, ``zero_quaternion``,
         ``stamp_order``, ``unknown_joint``, ``missing_joint``, ``malformed``, ``no_joints``,
         ``outlier``, ``backlog``, ``diverged``, ``filter_error``, ``nan_estimate``,
-        ``bad_scenario``).
+        ``bad_scenario``, ``no_pusher``). ``force_steps``: model steps that used a pusher
+        force reading.
         """
         now = time.monotonic()
         period = float(self.params["diagnostics_period"])
@@ -548,6 +623,7 @@ class FilterNode:
             values["filter_steps"] = str(self.session.steps)
             values["skipped_steps"] = str(self.session.skipped_steps)
             values["gap_steps"] = str(self.session.gap_steps)
+            values["force_steps"] = str(self.session.force_steps)
         if self.last_estimate is not None:
             est = self.last_estimate.estimate
             values["ess"] = f"{est.ess:.1f}"
@@ -558,7 +634,9 @@ class FilterNode:
             values["step_time_ms_mean"] = f"{times.mean():.3f}"
             values["step_time_ms_p95"] = f"{np.percentile(times, 95):.3f}"
             values["step_time_ms_max"] = f"{times.max():.3f}"
-            values["model_step_time_ms_mean"] = f"{(times / steps).mean():.3f}"
+            per_step = times / steps
+            values["model_step_time_ms_mean"] = f"{per_step.mean():.3f}"
+            values["model_step_time_ms_p95"] = f"{np.percentile(per_step, 95):.3f}"
         if self.latencies:
             lat = np.asarray(self.latencies) * 1e3
             values["latency_ms_mean"] = f"{lat.mean():.3f}"

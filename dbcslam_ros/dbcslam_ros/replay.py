@@ -58,7 +58,16 @@ __all__ = [
 NS = 1_000_000_000
 
 #: Input topics the filter node subscribes to.
-INPUT_TOPICS: tuple[str, ...] = ("/scenario", "/object/wrench", "/joint_states", "/object/pose")
+INPUT_TOPICS: tuple[str, ...] = (
+    "/scenario",
+    "/object/wrench",
+    "/joint_states",
+    "/pusher/wrench",
+    "/object/pose",
+)
+#: Particles of a replay when the parameters do not set them (the live node's default is
+#: smaller, for real time).
+REPLAY_PARTICLES = 500
 #: Files replay writes next to the bag; an output directory holding only these (and bag
 #: files) may be replaced with ``overwrite``.
 _PRODUCT_SUFFIXES = (".mcap", ".png", ".json", ".tmp")
@@ -291,6 +300,10 @@ def replay_bag(
     src = Path(bag)
     dst = Path(out)
     params = dict(opts.params)
+    # Offline there is no real-time budget: the full filter (not the node's live default
+    # particle count) and one /dbcslam/markers message per estimate, unless asked otherwise.
+    params.setdefault("particles", REPLAY_PARTICLES)
+    params.setdefault("marker_period", 0.0)
     with open_bag(src, salvage=opts.salvage) as reader:
         topics = reader.topics()
         counts = reader.counts()

@@ -11,6 +11,14 @@ observation into filter steps. Rules (documented in the README):
 * Joints (jaw / pusher positions, the moving obstacles): the positions at the pose time t,
   linearly interpolated between the two joint messages that bracket t, or held from the
   latest one when no later message has arrived yet.
+* Pusher force (`/pusher/wrench`, the F/T reading at the pusher: an observation, not an
+  input): the force of the model step ending at t is the reading at t, linearly interpolated
+  between the two readings that bracket t when they are at most `force_max_age_s` apart,
+  else the nearest reading within `force_max_age_s` of t; with no reading that close the step
+  has no force observation (a stale or missing sensor never blocks the filter). Only
+  scenarios with a single disk obstacle (the pusher) take it; elsewhere it is rejected
+  (reason `no_pusher`). The force is passed to the filter as `ForceObservation(fx, fy)`
+  (world axes, force of the object on the pusher, noise `FilterConfig.force_noise`).
 * Pose stamps that are not later than the previous one by at least half a model step are
   rejected (reason `stamp_order`); a jump back in time of more than `reset_after_s` (a bag
   played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
@@ -38,9 +46,9 @@ import numpy as np
 
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.geometry import wrap_angle
-from dbcslam_core.observation import PoseObservation
+from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
-from dbcslam_core.scenario import Scenario
+from dbcslam_core.scenario import Disk, Scenario
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
 
 __all__ = ["FilterSession", "StampedEstimate"]
@@ -97,6 +105,30 @@ class _History:
             return None
         return self.values[idx]
 
+    def near(self, t_ns: int, max_age_ns: int) -> tuple[float, ...] | None:
+        """Value at t: interpolated between bracketing readings at most max_age apart, else
+        the nearest reading within max_age of t, else None."""
+        if not self.stamps:
+            return None
+        stamps = list(self.stamps)
+        idx = bisect.bisect_left(stamps, t_ns)
+        if idx < len(stamps) and stamps[idx] == t_ns:
+            return self.values[idx]
+        before = idx - 1 if idx > 0 else None
+        after = idx if idx < len(stamps) else None
+        if before is not None and after is not None:
+            t0, t1 = stamps[before], stamps[after]
+            if t1 - t0 <= max_age_ns:
+                a = (t_ns - t0) / (t1 - t0)
+                v0, v1 = np.asarray(self.values[before]), np.asarray(self.values[after])
+                return tuple(float(v) for v in (1.0 - a) * v0 + a * v1)
+        near = [
+            j for j in (before, after) if j is not None and abs(stamps[j] - t_ns) <= max_age_ns
+        ]
+        if not near:
+            return None
+        return self.values[min(near, key=lambda j: abs(stamps[j] - t_ns))]
+
     def interpolated(self, t_ns: int) -> tuple[float, ...] | None:
         """Linear interpolation at t between bracketing values; hold at the ends."""
         if not self.stamps:
@@ -125,6 +157,7 @@ class FilterSession:
         extensions: tuple[ModelExtension, ...] = (),
         reset_after_s: float = 0.5,
         max_gap_s: float = 1.0,
+        force_max_age_s: float | None = None,
     ) -> None:
         self.scenario = scenario
         self.config = config
@@ -132,6 +165,11 @@ class FilterSession:
         self.extensions = extensions
         self.reset_after_ns = int(reset_after_s * NS)
         self.max_gap_ns = int(max_gap_s * NS)
+        # default: 1.5 model steps, so a reading at every sample is always found
+        age = 1.5 * scenario.dt if force_max_age_s is None else float(force_max_age_s)
+        self.force_max_age_ns = int(age * NS)
+        self.has_pusher = sum(isinstance(o, Disk) for o in scenario.obstacles) == 1
+        self.force_steps = 0
         self.rejected: Counter[str] = Counter()
         self.resets = 0
         self.steps = 0
@@ -139,6 +177,7 @@ class FilterSession:
         self.gap_steps = 0
         self._wrench = _History()
         self._joints = _History()
+        self._force = _History()
         self._last_pose_ns: int | None = None
         self._filter: DbcSlamFilter | None = None
         self._new_filter()
@@ -151,6 +190,19 @@ class FilterSession:
     def add_joints(self, reading: JointReading) -> None:
         """Record joint positions (already in scenario.joints order)."""
         self._joints.add(reading.stamp_ns, reading.positions)
+
+    def add_pusher_wrench(self, reading: WrenchReading) -> None:
+        """Record a pusher F/T reading (force of the object on the pusher, world axes, N;
+        the torque is ignored). Raises InputRejected (reason ``no_pusher``) when the scenario
+        has no single disk obstacle to attribute it to."""
+        if not self.has_pusher:
+            self.rejected["no_pusher"] += 1
+            msg = (
+                f"scenario '{self.scenario.kind}' has no single pusher (disk obstacle): "
+                "a pusher force reading cannot be used"
+            )
+            raise InputRejected("no_pusher", msg)
+        self._force.add(reading.stamp_ns, (reading.fx, reading.fy))
 
     def reject(self, reason: str) -> None:
         """Count an input rejected before it reached the session (e.g. failed conversion)."""
@@ -213,7 +265,13 @@ class FilterSession:
             inp = FilterInput(
                 wrench=wrench, joints=self._joints_at(t_end), joints_start=joints_start
             )
-            est = flt.step(obs if k == n_run - 1 else None, inp)
+            force = self._force_at(t_end)
+            step_obs = obs if k == n_run - 1 else None
+            if force is None:
+                est = flt.step(step_obs, inp)
+            else:
+                est = flt.step(step_obs, inp, force=force)
+            self.force_steps += force is not None
         assert est is not None
         self._last_pose_ns = reading.stamp_ns
         self.steps += n_run
@@ -253,9 +311,11 @@ class FilterSession:
         if keep_until_ns is None:
             self._wrench.clear()
             self._joints.clear()
+            self._force.clear()
         else:
             self._wrench.drop_after(keep_until_ns)
             self._joints.drop_after(keep_until_ns)
+            self._force.drop_after(keep_until_ns)
         self._last_pose_ns = None
         self._new_filter()
 
@@ -272,6 +332,11 @@ class FilterSession:
         if self.scenario.nq == 3:
             q[:, 2] = wrap_angle(q[:, 2])
         flt.q = q
+
+    def _force_at(self, t_ns: int) -> ForceObservation | None:
+        """Pusher force for the model step ending at t (rules in the module docstring)."""
+        value = self._force.near(t_ns, self.force_max_age_ns)
+        return None if value is None else ForceObservation(value[0], value[1])
 
     def _joints_at(self, t_ns: int) -> tuple[float, ...]:
         n = len(self.scenario.joints)

@@ -29,7 +29,7 @@ ARGUMENTS = {
     "duration": ("0.0", "simulated time in s (0: scenario default)"),
     "sim_params": ("", "simulation parameters YAML"),
     "fast": ("false", "simulate as fast as possible and publish /clock"),
-    "particles": ("500", "particles of the filter"),
+    "particles": ("-1", "particles of the filter (-1: live default per scenario kind)"),
     "filter_params": ("", "ROS parameters YAML of the filter node (optional)"),
     "record": ("false", "record every topic with `dbcslam record`"),
     "bag": ("dbcslam_demo_bag", "output directory of the recording"),

@@ -305,3 +305,44 @@ def test_full_mass_matches_diagonal_mass() -> None:
     np.testing.assert_allclose(full.v_next, diag.v_next, atol=1e-13)
     np.testing.assert_allclose(full.response, diag.response, atol=1e-12)
     np.testing.assert_allclose(full.score, diag.score, atol=1e-9)
+
+
+@pytest.mark.parametrize("mode", [Mode.STICKING, Mode.SLIDING_POS])
+def test_impulse_response_is_derivative_of_impulses(mode: Mode) -> None:
+    """`impulse_response` = d(ln, lt)/d v_free (used to widen predicted contact forces)."""
+    model = PlanarModel(GRIPPER)
+    rng = np.random.default_rng(3 + int(mode))
+    q = np.array([0.0, 0.02, 0.3])
+    env = np.array([-0.05, 0.05])
+    kin = contact_kinematics(GRIPPER, q, env)
+    q[1] -= float(np.min(kin.phi[:3]))
+    modes = np.zeros(6, dtype=np.int64)
+    modes[int(np.argmin(kin.phi[:3]))] = mode
+    kin = contact_kinematics(GRIPPER, q, env, np.zeros(2))
+
+    def solve(v: np.ndarray, sens: bool = False):  # type: ignore[no-untyped-def]
+        return solve_reduced(
+            modes,
+            v,
+            inv_mass=1.0 / model.mass_diag,
+            jn=kin.Jn,
+            jt=kin.Jt,
+            phi=kin.phi,
+            vn_env=kin.vn_env,
+            vt_env=kin.vt_env,
+            mu=np.full(6, 0.4),
+            dt=GRIPPER.dt,
+            impulse_sensitivity=sens,
+        )
+
+    v0 = rng.normal(size=3) * 0.05
+    base = solve(v0, sens=True)
+    assert solve(v0).impulse_response is None
+    assert base.impulse_response is not None and base.impulse_response.shape == (2, 6, 3)
+    dv = rng.normal(size=3) * 1e-4
+    moved = solve(v0 + dv)
+    np.testing.assert_allclose(moved.ln - base.ln, base.impulse_response[0] @ dv, atol=1e-12)
+    np.testing.assert_allclose(moved.lt - base.lt, base.impulse_response[1] @ dv, atol=1e-12)
+    sep = modes == Mode.SEPARATED
+    assert np.all(base.impulse_response[:, sep] == 0.0)
+    assert np.any(base.impulse_response[0, ~sep] != 0.0)

@@ -7,6 +7,7 @@ import pytest
 
 from dbcslam_core.errors import ModelError
 from dbcslam_core.observation import (
+    ForceObservation,
     JointSmoother,
     PoseObservation,
     PoseObservationModel,
@@ -136,3 +137,40 @@ def test_full_covariance_proposal_matches_diagonal_case_and_conditioning() -> No
     assert float(gaussian_log_density(x, cov)) == pytest.approx(
         float(multivariate_normal(np.zeros(3), cov).logpdf(x))
     )
+
+
+def test_force_observation_validates() -> None:
+    f = ForceObservation(1.0, -2.0)
+    assert f.obstacle is None and f.std is None
+    with pytest.raises(ModelError, match="finite"):
+        ForceObservation(float("nan"), 0.0)
+    with pytest.raises(ModelError, match="std"):
+        ForceObservation(0.0, 0.0, std=0.0)
+
+
+def test_joint_smoother_maneuver_companion_is_smooth_and_follows_stops() -> None:
+    """A stiff smoother alone lags at a stop; the agile companion takes over there, while the
+    constant-speed velocity stays far more precise than with a soft smoother."""
+    dt, noise = 0.01, 5e-4
+
+    def run(accel: float, maneuver: float | None) -> tuple[float, float]:
+        js = JointSmoother(1, dt, noise, accel, maneuver_accel_std=maneuver)
+        js.reset([0.0])
+        rng = np.random.default_rng(0)
+        v_err, p_err = [], []
+        for k in range(300):
+            t = k * dt
+            x = 0.05 * min(max(t - 0.5, 0.0), 1.5)
+            v = 0.05 if 0.5 <= t < 2.0 else 0.0
+            pos = js.update([x + noise * rng.standard_normal()])[0]
+            if 100 <= k < 190:
+                v_err.append(js.velocity[0] - v)
+            if 200 <= k < 240:
+                p_err.append(abs(pos - x))
+        return float(np.std(v_err)), float(np.max(p_err))
+
+    v_soft, _ = run(0.3, None)
+    v_stiff, p_stiff = run(0.01, None)
+    v_man, p_man = run(0.01, 3.0)
+    assert v_man < 0.2 * v_soft
+    assert p_man < 0.5 * p_stiff

@@ -180,3 +180,64 @@ def test_push_with_support_friction_runs_through_the_same_filter() -> None:
     assert _pos_rmse(est, short) < traj.scenario.noise.position
     assert est[-1].friction.shape == (2, 3)
     np.testing.assert_allclose(est[-1].friction.sum(axis=1), 1.0)
+
+
+def _push_force(traj: Trajectory, noise: float, rng: np.random.Generator) -> np.ndarray:
+    """Force on the pusher (N, world) of step k -> k+1 at row k+1: -(n ln + t lt) / dt."""
+    from dbcslam_core.geometry import contact_kinematics
+
+    kin = contact_kinematics(traj.scenario, traj.q[:-1], traj.env[:-1])
+    n = kin.normal[:, 0, :]
+    t = np.stack([n[:, 1], -n[:, 0]], axis=-1)
+    f = -(n * traj.ln[1:, 0, None] + t * traj.lt[1:, 0, None]) / traj.scenario.dt
+    f = np.vstack([np.zeros((1, 2)), f])
+    return f + noise * rng.standard_normal(f.shape)
+
+
+def test_pusher_force_observation_detects_contact_and_support_friction() -> None:
+    from dbcslam_core.observation import ForceObservation
+    from dbcslam_core.synthetic import push_trajectory
+
+    traj = push_trajectory(0, side_position=0.8)
+    force = _push_force(traj, 0.05, np.random.default_rng(5))
+    sc = traj.scenario
+    cfg = FilterConfig.preset("push", particles=80)
+
+    def run(use_force: bool) -> tuple[float, np.ndarray]:
+        f = DbcSlamFilter(sc, cfg, np.random.default_rng(3))
+        f.initialize(traj.obs[0], [1e-3, 1e-3, 1e-2], joints=traj.env_obs[0])
+        hits = []
+        est = None
+        for k in range(1, traj.n_steps):
+            fo = ForceObservation(*force[k]) if use_force else None
+            est = f.step(
+                PoseObservation(*traj.obs[k]),
+                FilterInput(tuple(traj.u[k - 1]), tuple(traj.env_obs[k])),
+                force=fo,
+            )
+            hits.append((est.modes[0, Mode.SEPARATED] < 0.5) == (traj.modes[k, 0] != 0))
+        assert est is not None
+        return float(np.mean(hits)), est.friction
+
+    acc_f, fric_f = run(True)
+    acc_0, _ = run(False)
+    assert acc_f >= 0.95 and acc_f > acc_0
+    # support pair (index 1): true mu_s = 0.25 = candidate 1
+    assert fric_f[1, 1] > 0.9
+
+
+def test_force_observation_validation(edge_traj: Trajectory) -> None:
+    from dbcslam_core.observation import ForceObservation
+
+    f = DbcSlamFilter(edge_traj.scenario, FilterConfig.preset("edge", particles=10))
+    inp = FilterInput(tuple(edge_traj.u[0]), tuple(edge_traj.env_obs[1]))
+    obs = PoseObservation(*edge_traj.obs[1][:2])
+    with pytest.raises(ModelError, match="no single disk"):
+        f.step(obs, inp, force=ForceObservation(0.0, 0.0))
+    with pytest.raises(ModelError, match="valid obstacles"):
+        f.step(obs, inp, force=ForceObservation(0.0, 0.0, obstacle="nope"))
+    with pytest.raises(ModelError, match="force_noise"):
+        FilterConfig(force_noise=0.0)
+    # naming the edge obstacle works (a contact force reading on the edge)
+    est = f.step(obs, inp, force=ForceObservation(0.0, 0.0, obstacle="edge"))
+    assert est.step == 1

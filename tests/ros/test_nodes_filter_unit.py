@@ -225,3 +225,79 @@ def test_nan_inputs_do_not_reach_the_filter(node: Any, traj: Any) -> None:
     for topic, _ in fake.published:
         counts[topic] += 1
     assert counts["/dbcslam/pose"] == 4
+
+
+def test_particles_default_is_the_live_default_per_kind(traj: Any) -> None:
+    fake = FakeNode()
+    filt = fn.FilterNode(fake)
+    fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
+    assert filt.session is not None
+    assert filt.session.config.particles == fn.live_particles("edge")
+    assert fn.build_config("gripper", {**_defaults(), "particles": 7}).particles == 7
+    assert fn.build_config("push", _defaults()).particles == fn.LIVE_PARTICLES["push"]
+
+
+def _defaults() -> dict[str, Any]:
+    return {name: default for name, (default, _) in fn.PARAMETERS.items()}
+
+
+@pytest.mark.parametrize("bad", [0, -2])
+def test_bad_particle_count_is_a_parameter_error(bad: int) -> None:
+    with pytest.raises(fn.ParameterError, match="particles"):
+        fn.FilterNode(FakeNode({"particles": bad}))
+
+
+@pytest.mark.parametrize(("period", "expected"), [(0.0, 19), (0.05, 4)])
+def test_markers_at_most_one_per_marker_period(traj: Any, period: float, expected: int) -> None:
+    fake = FakeNode({"particles": 20, "marker_particles": 3, "marker_period": period})
+    filt = fn.FilterNode(fake)
+    fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
+    for k in range(20):  # estimates at 10 .. 190 ms
+        _tick((fake, filt), traj, k)
+    assert filt.published == 19
+    # period 0.05 s: markers at 10, 60, 110, 160 ms
+    assert fake.topics().count("/dbcslam/markers") == expected
+
+
+def _push_node(use: bool) -> tuple[FakeNode, fn.FilterNode, Any]:
+    from dbcslam_core.synthetic import push_trajectory
+
+    tr = push_trajectory(0)
+    fake = FakeNode({"particles": 20, "use_pusher_wrench": use})
+    filt = fn.FilterNode(fake)
+    fake.subs["/scenario"](_string(tr.scenario.to_yaml()))
+    return fake, filt, tr
+
+
+@pytest.mark.parametrize("use", [True, False])
+def test_pusher_wrench_subscription_feeds_the_session(use: bool) -> None:
+    fake, filt, tr = _push_node(use)
+    joint_cls = rt.message_class("sensor_msgs/msg/JointState")
+    assert "/pusher/wrench" in fake.subs
+    order = list(fake.subs)
+    assert order.index("/pusher/wrench") < order.index("/object/pose")
+    for k in range(6):
+        stamp = T0 + k * NS // 100
+        fake.subs["/joint_states"](
+            joint_cls(
+                header=pose_stamped(stamp, 0.0, 0.0).header,
+                name=list(tr.scenario.joints),
+                position=[float(v) for v in tr.env_obs[k]],
+                velocity=[],
+                effort=[],
+            )
+        )
+        fake.subs["/pusher/wrench"](wrench_stamped(stamp, 0.2, -0.1))
+        x, y, yaw = (float(v) for v in tr.obs[k])
+        fake.subs["/object/pose"](pose_stamped(stamp, x, y, yaw))
+        filt.process_pending()
+    assert filt.published == 5
+    filt.publish_diagnostics()
+    values = {kv.key: kv.value for kv in fake.last("/diagnostics").status[0].values}
+    assert values["force_steps"] == ("5" if use else "0")
+
+
+def test_pusher_wrench_for_a_scenario_without_pusher_is_rejected(node: Any) -> None:
+    fake, filt = node
+    fake.subs["/pusher/wrench"](wrench_stamped(T0, 1.0, 0.0))
+    assert filt.session is not None and filt.session.rejected["no_pusher"] == 1

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dbcslam_core.rbpf import FilterConfig, FilterInput
-from dbcslam_core.scenario import Scenario, edge_scenario, gripper_scenario
+from dbcslam_core.scenario import Scenario, edge_scenario, gripper_scenario, push_scenario
 from dbcslam_ros import session as session_mod
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
 from dbcslam_ros.session import FilterSession
@@ -249,3 +249,120 @@ def test_real_filter_tracks_synthetic_edge() -> None:
     assert float(np.mean(errs)) < 2.0 * sc.noise.position
     px, w = s.particles()
     assert px.shape == (50, 2) and w.sum() == pytest.approx(1.0)
+
+
+# -- pusher force (/pusher/wrench) -------------------------------------------------------------
+
+
+class ForceRecordingFilter(RecordingFilter):
+    """RecordingFilter that also takes the force observation."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.forces: list[Any] = []
+
+    def step(self, observation: Any, inputs: FilterInput, force: Any = None) -> Any:
+        self.forces.append(force)
+        return super().step(observation, inputs)
+
+
+@pytest.fixture
+def force_filter(monkeypatch: pytest.MonkeyPatch) -> type[ForceRecordingFilter]:
+    RecordingFilter.instances = []
+    monkeypatch.setattr(session_mod, "DbcSlamFilter", ForceRecordingFilter)
+    return ForceRecordingFilter
+
+
+@pytest.fixture
+def push_session() -> FilterSession:
+    from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS
+
+    sc = push_scenario(PUSH_RECT, mass=PUSH_RECT_MASS)
+    return FilterSession(sc, FilterConfig.preset(sc.kind, particles=10))
+
+
+def _push_tick(s: FilterSession, t_ms: float, force: tuple[float, float] | None) -> None:
+    s.add_joints(joints(t_ms, 0.0, -0.1))
+    if force is not None:
+        s.add_pusher_wrench(WrenchReading(T0 + round(t_ms * MS), force[0], force[1], 0.0))
+
+
+def test_pusher_force_at_the_pose_stamp_is_observed(
+    force_filter: Any, push_session: FilterSession
+) -> None:
+    s = push_session
+    _push_tick(s, 0.0, (9.0, 9.0))
+    s.add_pose(pose(0.0))
+    _push_tick(s, 10.0, (0.5, -1.5))
+    s.add_pose(pose(10.0))
+    flt = force_filter.instances[-1]
+    (f,) = flt.forces
+    assert (f.fx, f.fy) == (0.5, -1.5) and f.obstacle is None and f.std is None
+    assert s.force_steps == 1
+
+
+def test_pusher_force_interpolated_or_nearest_or_absent(
+    force_filter: Any, push_session: FilterSession
+) -> None:
+    s = push_session
+    dt_ms = s.scenario.dt * 1e3
+    _push_tick(s, 0.0, None)
+    s.add_pose(pose(0.0))
+    # readings at 0.5 dt and 1.4 dt bracket the pose at 1 dt: interpolated
+    s.add_pusher_wrench(WrenchReading(T0 + round(0.5 * dt_ms * MS), 1.0, 0.0, 0.0))
+    s.add_pusher_wrench(WrenchReading(T0 + round(1.4 * dt_ms * MS), 2.0, 4.0, 0.0))
+    _push_tick(s, dt_ms, None)
+    s.add_pose(pose(dt_ms))
+    # next pose at 2 dt: no later reading; the 1.4 dt one is within 1.5 dt: nearest
+    _push_tick(s, 2 * dt_ms, None)
+    s.add_pose(pose(2 * dt_ms))
+    # pose at 5 dt: the gap steps end at 3, 4, 5 dt, all > 1.5 dt after the last reading
+    _push_tick(s, 5 * dt_ms, None)
+    s.add_pose(pose(5 * dt_ms))
+    forces = force_filter.instances[-1].forces
+    a = 0.5 / 0.9
+    assert forces[0].fx == pytest.approx(1.0 + a) and forces[0].fy == pytest.approx(4.0 * a)
+    assert (forces[1].fx, forces[1].fy) == (2.0, 4.0)
+    assert forces[2:] == [None, None, None]
+    assert s.force_steps == 2
+
+
+def test_pusher_force_forgotten_on_reset(force_filter: Any, push_session: FilterSession) -> None:
+    s = push_session
+    _push_tick(s, 0.0, (1.0, 1.0))
+    s.add_pose(pose(0.0))
+    s.reset()
+    _push_tick(s, 10.0, None)
+    s.add_pose(pose(10.0))  # initialises the new filter
+    _push_tick(s, 20.0, None)
+    s.add_pose(pose(20.0))
+    assert force_filter.instances[-1].forces == [None]
+
+
+def test_pusher_force_without_a_pusher_is_rejected(fake_filter: Any) -> None:
+    s = _session(gripper_scenario())
+    with pytest.raises(InputRejected) as info:
+        s.add_pusher_wrench(WrenchReading(T0, 1.0, 0.0, 0.0))
+    assert info.value.reason == "no_pusher" and s.rejected["no_pusher"] == 1
+
+
+def test_pusher_force_reaches_the_real_filter(push_session: FilterSession) -> None:
+    """With the real core filter a force reading is accepted and changes the estimate."""
+    from dbcslam_core.synthetic import push_trajectory
+
+    tr = push_trajectory(0)
+    results = {}
+    for use in (False, True):
+        s = FilterSession(tr.scenario, FilterConfig.preset("push", particles=20), seed=1)
+        out = None
+        for k in range(40):
+            t = T0 + k * round(tr.scenario.dt * 1e9)
+            s.add_joints(JointReading(t, tuple(float(v) for v in tr.env_obs[k])))
+            if use:
+                s.add_pusher_wrench(WrenchReading(t, 0.3, 0.0, 0.0))
+            x, y, yaw = (float(v) for v in tr.obs[k])
+            out = s.add_pose(PoseReading(t, x, y, yaw)) or out
+        assert out is not None
+        assert s.force_steps == (39 if use else 0)
+        results[use] = out[0].estimate
+    assert not np.array_equal(results[False].pose, results[True].pose)

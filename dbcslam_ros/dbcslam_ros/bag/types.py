@@ -105,7 +105,9 @@ def serialize(message: object) -> tuple[str, bytes]:
         BagError: the object is not a message of a known type.
     """
     msgtype = getattr(message, "__msgtype__", None)
-    if not isinstance(msgtype, str):
+    # The dds runtime's generated classes also carry __msgtype__; their __idl__ tells them
+    # apart from rosbags dataclasses (rclpy's messages have no __msgtype__ at all).
+    if not isinstance(msgtype, str) or hasattr(type(message), "__idl__"):
         return _serialize_runtime(message)
     try:
         data = jazzy_typestore().serialize_cdr(message, msgtype)

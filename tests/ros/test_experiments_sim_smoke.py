@@ -1,0 +1,106 @@
+"""Smoke test of `python -m dbcslam_ros.experiments_sim`: tiny pybullet run, files appear,
+table parses, bad arguments exit 2."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pybullet")
+
+from dbcslam_ros.experiments_sim import (  # noqa: E402
+    SIM_TARGETS,
+    ForceFedFilter,
+    _segments_truth,
+    main,
+    sim_trajectory,
+)
+
+
+@pytest.fixture(scope="module")
+def out_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("experiments_sim")
+    argv = ["--out", str(out), "--seeds", "1", "--particles", "8", "--duration", "0.5"]
+    rc = main([*argv, "--workers", "1", "--quiet"])
+    assert rc == 0
+    return out
+
+
+def test_table_files_parse(out_dir: Path) -> None:
+    data = json.loads((out_dir / "experiments_sim.json").read_text())
+    assert data["config"]["particles"] == 8
+    assert data["config"]["duration"] == 0.5
+    assert {r["scenario"] for r in data["runs"]} == {"edge", "gripper", "push"}
+    methods = {(r["scenario"], r["method"]) for r in data["runs"]}
+    assert ("edge", "fixed_mu_0.3") in methods
+    assert ("edge", "fixed_mu_0.9") in methods
+    assert ("push", "dbcslam_no_force") in methods
+    assert len(data["targets"]) == len(SIM_TARGETS)
+    for t in data["targets"]:
+        assert t["passed"] in (True, False, None)
+    for r in data["runs"]:
+        rmse = r["metrics"]["position_rmse"]
+        assert rmse is not None and 0.0 < rmse < 1.0
+    md = (out_dir / "experiments_sim.md").read_text()
+    rows = [ln for ln in md.splitlines() if ln.startswith(("| edge |", "| gripper |", "| push |"))]
+    target_rows = rows[: len(data["targets"])]
+    assert len(target_rows) == len(data["targets"])
+    for row in target_rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[-1] in ("PASS", "FAIL", "report")
+
+
+def test_figures_written(out_dir: Path) -> None:
+    for name in ("sim_edge_overview.png", "sim_gripper_overview.png", "sim_push_overview.png"):
+        assert (out_dir / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_arguments_exit_2(tmp_path: Path) -> None:
+    assert main(["--out", str(tmp_path), "--scenarios", "nope", "--quiet"]) == 2
+    assert main(["--out", str(tmp_path), "--particles", "0", "--quiet"]) == 2
+
+
+def test_segment_truth_marks_seam_cells_impure() -> None:
+    class _Trace:
+        map_edges = np.array([-0.1, 0.0, 0.1, 0.2, 0.25, 0.35, 0.4])
+        candidates = (0.3, 0.9)
+
+    segs = ((-5.0, 0.0, 0.3), (0.0, 0.3, 0.9), (0.3, 5.0, 0.3))
+    idx, pure = _segments_truth(_Trace(), segs)  # type: ignore[arg-type]
+    assert pure.tolist() == [True, True, True, True, False, True]
+    assert idx.tolist()[:4] == [0, 1, 1, 1]
+    assert idx[-1] == 0
+
+
+def test_force_fed_filter_passes_force_of_step_k() -> None:
+    seen: list[tuple[float, float, float | None]] = []
+
+    class _Filt:
+        def initialize(self, *args: object, **kwargs: object) -> None:
+            pass
+
+        def step(self, obs: object, inp: object, force: object) -> object:
+            seen.append((force.fx, force.fy, force.std))  # type: ignore[attr-defined]
+            return None
+
+    force = np.array([[0.0, 0.0], [1.0, 2.0], [3.0, 4.0]])
+    fed = ForceFedFilter(_Filt(), force, 0.05)  # type: ignore[arg-type]
+    fed.initialize(None, None)
+    fed.step(None, None)  # type: ignore[arg-type]
+    fed.step(None, None)  # type: ignore[arg-type]
+    assert seen == [(1.0, 2.0, 0.05), (3.0, 4.0, 0.05)]
+
+
+def test_push_force_reading_matches_truth_in_contact() -> None:
+    tr, params, force = sim_trajectory("push", 0, overrides={"support_pair": "surface"})
+    assert force.shape == (tr.n_steps, 2)
+    in_contact = tr.modes[:, 0] != 0
+    assert in_contact.any() and (~in_contact).any()
+    # quasi-static push: |F| ~ mu_surface m g
+    expected = params.mu_surface * tr.scenario.body.mass * tr.scenario.gravity
+    assert math.isclose(float(np.median(np.abs(force[in_contact, 1]))), expected, rel_tol=0.1)
+    assert float(np.max(np.abs(force[~in_contact]))) < 6 * params.noise.force

@@ -1,0 +1,124 @@
+"""The measured-data pipeline (dbcslam_ros.mitpush_eval) on the 3 pushes in tests/data."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from dbcslam_ros.errors import UsageError
+from dbcslam_ros.mitpush_eval import (
+    EvalOptions,
+    markdown_table,
+    resolve_data,
+    run_eval,
+    summarise,
+)
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "mit-push"
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], Path, str]:
+    out = tmp_path_factory.mktemp("mitpush_eval")
+    progress = io.StringIO()
+    summary = run_eval(
+        EvalOptions(
+            data=DATA,
+            out=out / "table",
+            work=out / "work",
+            particles=16,
+            jobs=1,
+            progress=progress,
+            params=(("use_pusher_wrench", "false"),),
+        ),
+        command="test",
+    )
+    return summary, out, progress.getvalue()
+
+
+def test_writes_table_json_and_one_figure_per_shape(
+    result: tuple[dict[str, Any], Path, str],
+) -> None:
+    summary, out, progress = result
+    table = out / "table"
+    md = (table / "mitpush.md").read_text()
+    on_disk = json.loads((table / "mitpush.json").read_text())
+    assert on_disk["groups"] == json.loads(json.dumps(summary["groups"]))
+    shapes = {"ellip1", "hex", "rect1"}
+    assert {p["shape"] for p in on_disk["pushes"]} == shapes
+    assert {Path(f).name for f in on_disk["figures"]} == {f"mitpush_{s}.png" for s in shapes}
+    for f in on_disk["figures"]:
+        assert Path(f).stat().st_size > 10_000
+    for name in (*shapes, "ft_flag", "overall"):
+        assert f"| {name} |" in md
+    assert "[3/3]" in progress and "contact agreement" in progress
+    assert summary["settings"]["filter_uses_pusher_wrench"] is False
+    # rect1's F/T stream is stale: its flag is geometric, the others' from the F/T sensor
+    sources = {p["shape"]: p["contact_source"] for p in on_disk["pushes"]}
+    assert sources == {"ellip1": "ft", "hex": "ft", "rect1": "geometry"}
+
+
+def test_metrics_are_in_range(result: tuple[dict[str, Any], Path, str]) -> None:
+    summary, _, _ = result
+    for push in summary["pushes"]:
+        m = push["metrics"]
+        assert m["matched"] == m["estimates"] > 50
+        assert 0.0 <= m["contact_flag_agreement"] <= 1.0
+        assert m["contact_flag_entries"] == m["matched"]
+        for key in ("position_rmse_m", "yaw_rmse_rad"):
+            assert math.isfinite(m[key]) and m[key] > 0.0
+        # RMSE relative to the *added* noise (5 mm / 0.05 rad)
+        assert m["position_rmse_over_noise"] == pytest.approx(
+            m["position_rmse_m"] / 0.005, rel=1e-3
+        )
+        assert m["yaw_rmse_over_noise"] == pytest.approx(m["yaw_rmse_rad"] / 0.05, rel=1e-3)
+        pairs = {f["pair"]: f for f in m["friction"]}
+        assert set(pairs) == {"pusher", "surface"}
+        for f in pairs.values():
+            assert sum(f["final_posterior"]) == pytest.approx(1.0, abs=1e-3)
+            assert min(f["candidates"]) <= f["posterior_mean"] <= max(f["candidates"])
+    overall = summary["groups"]["overall"]
+    assert overall["pushes"] == 3
+    assert 0.0 <= overall["contact_flag_agreement"] <= 1.0
+    assert isinstance(overall["pass_pose"], bool) and isinstance(overall["pass_contact"], bool)
+
+
+def test_summary_medians_and_pass_flags() -> None:
+    def push(shape: str, pos: float, agree: float) -> dict[str, Any]:
+        metrics = {
+            "position_rmse_over_noise": pos,
+            "yaw_rmse_over_noise": 0.5,
+            "contact_flag_agreement": agree,
+            "friction": [
+                {
+                    "pair": "pusher",
+                    "candidates": [0.1, 0.3],
+                    "final_posterior": [1.0, 0.0],
+                    "posterior_mean": 0.1,
+                }
+            ],
+        }
+        return {"shape": shape, "contact_source": "ft", "metrics": metrics}
+
+    groups = summarise([push("a", 0.2, 0.95), push("a", 0.4, 0.5), push("b", 0.9, 0.97)])
+    assert groups["a"]["position_rmse_over_noise"] == pytest.approx(0.3)
+    assert groups["a"]["pass_pose"] and not groups["a"]["pass_contact"]
+    assert not groups["b"]["pass_pose"] and groups["b"]["pass_contact"]
+    assert groups["overall"]["contact_flag_agreement"] == pytest.approx(0.95)
+    assert groups["overall"]["pass_pose"] and groups["overall"]["pass_contact"]
+    assert groups["overall"]["friction"]["pusher"]["final_posterior_average"] == [1.0, 0.0]
+    assert "ft_flag" not in groups
+    assert "| overall | 3 |" in markdown_table({"groups": groups})
+
+
+def test_missing_data_is_a_usage_error(tmp_path: Path) -> None:
+    with pytest.raises(UsageError, match="--data"):
+        resolve_data(tmp_path / "nowhere")
+    with pytest.raises(UsageError, match=r"no \.h5"):
+        resolve_data(tmp_path)
+    assert len(resolve_data(DATA)) == 3
