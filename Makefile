@@ -34,9 +34,13 @@ demo: venv
 
 experiments: venv
 	$(BIN)/python -m dbcslam_ros.experiments
+	$(BIN)/python -m dbcslam_ros.experiments_sim
+	$(BIN)/python -m dbcslam_ros.readme_results
 
 bench: venv
 	$(BIN)/python -m dbcslam_ros.bench
+	$(BIN)/python -m dbcslam_ros.bench_live
+	$(BIN)/python -m dbcslam_ros.readme_results
 
 clean:
 	rm -rf $(VENV) build ros_ws/build ros_ws/install ros_ws/log .mypy_cache .ruff_cache .pytest_cache

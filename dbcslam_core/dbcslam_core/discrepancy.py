@@ -120,6 +120,7 @@ class DiscrepancyConfig:
     block: float = 0.5
     effects: tuple[str, ...] | None = None
     pgs_iterations: int = 200
+    support_iterations: int = 4
 
 
 def default_effects(scenario: Scenario) -> tuple[str, ...]:
@@ -145,11 +146,41 @@ def nominal_friction(scenario: Scenario) -> F64:
     return np.asarray(out, dtype=np.float64)
 
 
-def smooth_states(obs: F64, dt: float, window: int, order: int) -> tuple[F64, F64]:
+def _window_fit(y: F64, dt: float, w: int, order: int, off: I64) -> tuple[F64, F64, F64]:
+    """Local polynomial fits on windows starting at k - off[k]: (q, v, rss per sample)."""
+    n = y.shape[0]
+    idx = np.arange(n)
+    start = np.clip(idx - off, 0, max(n - w, 0))
+    o = idx - start
+    tw = np.arange(w, dtype=np.float64)
+    cq = np.zeros((w, w))
+    cv = np.zeros((w, w))
+    hat = np.zeros((w, w, w))
+    for j in range(w):
+        vand = np.vander((tw - j) * dt, order + 1, increasing=True)
+        pinv = np.linalg.pinv(vand)
+        cq[j] = pinv[0]
+        cv[j] = pinv[1]
+        hat[j] = vand @ pinv
+    win = np.minimum(start[:, None] + np.arange(w)[None, :], n - 1)
+    yw = y[win]  # (T, w, d)
+    q = np.einsum("tw,twd->td", cq[o], yw)
+    v = np.einsum("tw,twd->td", cv[o], yw)
+    fit = np.einsum("tij,tjd->tid", hat[o], yw)
+    rss = np.sum((yw - fit) ** 2, axis=1)  # (T, d)
+    return np.asarray(q, np.float64), np.asarray(v, np.float64), np.asarray(rss, np.float64)
+
+
+def smooth_states(
+    obs: F64, dt: float, window: int, order: int, *, adaptive: bool = True
+) -> tuple[F64, F64]:
     """Local polynomial (Savitzky-Golay-type) position and velocity estimates.
 
-    obs[T, d] (nan = missing: filled by linear interpolation first); centred windows of
-    `window` samples (shifted inside the series at its ends). Returns q[T, d], v[T, d].
+    obs[T, d] (nan = missing: filled by linear interpolation first); windows of `window`
+    samples (shifted inside the series at its ends). adaptive: per sample, the best-fitting
+    of the centred, backward and forward windows (smallest residual, each dimension scaled
+    by its median residual) so that impacts and stops are not smoothed across.
+    Returns q[T, d], v[T, d].
     """
     n, d = obs.shape
     y = np.array(obs, dtype=np.float64)
@@ -162,22 +193,18 @@ def smooth_states(obs: F64, dt: float, window: int, order: int) -> tuple[F64, F6
             y[:, c] = np.interp(idx, idx[ok], y[ok, c])
     w = max(order + 1, min(window, n))
     half = w // 2
-    start = np.clip(idx - half, 0, max(n - w, 0))
-    off = idx - start  # evaluation offset inside the window
-    tw = np.arange(w, dtype=np.float64)
-    coefs_q = np.zeros((w, w))
-    coefs_v = np.zeros((w, w))
-    for o in range(w):
-        vand = np.vander((tw - o) * dt, order + 1, increasing=True)  # (w, order+1)
-        pinv = np.linalg.pinv(vand)
-        coefs_q[o] = pinv[0]
-        coefs_v[o] = pinv[1]
-    win = start[:, None] + np.arange(w)[None, :]
-    win = np.minimum(win, n - 1)
-    yw = y[win]  # (T, w, d)
-    q = np.einsum("tw,twd->td", coefs_q[off], yw)
-    v = np.einsum("tw,twd->td", coefs_v[off], yw)
-    return np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    offsets = (half, w - 1, 0) if adaptive else (half,)
+    fits = [_window_fit(y, dt, w, order, np.full(n, o, dtype=np.int64)) for o in offsets]
+    if len(fits) == 1:
+        return fits[0][0], fits[0][1]
+    scale = np.maximum(np.median(fits[0][2], axis=0), 1e-30)  # (d,)
+    cost = np.stack([np.sum(f[2] / scale, axis=-1) for f in fits])  # (3, T)
+    # prefer the centred window unless a one-sided one fits clearly better
+    cost[1:] *= 1.5
+    pick = np.argmin(cost, axis=0)
+    q = np.stack([f[0] for f in fits])[pick, idx]
+    v = np.stack([f[1] for f in fits])[pick, idx]
+    return np.asarray(q, np.float64), np.asarray(v, np.float64)
 
 
 # ------------------------------------------------------------------------ effect params
@@ -247,6 +274,7 @@ class _RunData:
     v0: F64
     target: F64  # (S, H, nq) observed poses at k + 1 .. k + H (nan = missing)
     mu_nom: F64  # (P,)
+    env_smooth: F64  # (T, E) joint readings smoothed like the poses
     models: dict[tuple[float, float | None], PlanarModel] = field(default_factory=dict)
 
 
@@ -317,6 +345,11 @@ class Predictor:
                     v0=v[cand],
                     target=tgt,
                     mu_nom=nominal_friction(sc),
+                    env_smooth=(
+                        smooth_states(run.env, sc.dt, cfg.window, cfg.order)[0]
+                        if run.env.shape[1]
+                        else run.env
+                    ),
                 )
             )
         if not self.data:
@@ -342,7 +375,7 @@ class Predictor:
                 d.run.scenario,
                 exts,
                 PGSSolver(max_iter=self.cfg.pgs_iterations),
-                support_iterations=20,
+                support_iterations=self.cfg.support_iterations,
                 support_tol=1e-7,
             )
         return d.models[key]
@@ -366,7 +399,8 @@ class Predictor:
         hi = np.minimum(lo + 1, n - 1)
         fr = (pos - lo)[..., None]
         u_d = run.u[lo] * (1.0 - fr) + run.u[hi] * fr  # (G, T, nq)
-        e_d = run.env[lo] * (1.0 - fr) + run.env[hi] * fr  # (G, T, E)
+        env = d.env_smooth
+        e_d = env[lo] * (1.0 - fr) + env[hi] * fr  # (G, T, E)
         bias = mods.bias[:, :nq]  # (G, nq)
         q = np.broadcast_to(d.q0[None], (g, s_n, nq)) - bias[:, None, :]
         v = np.broadcast_to(d.v0[None], (g, s_n, nq)).copy()

@@ -204,8 +204,12 @@ class FrictionMap:
         if not ok.any():
             return
         cells = self.cell_of(s_a[ok])
-        np.add.at(self._sums[pair], cells, w_a[ok, None] * p_a[ok])
-        np.add.at(self._weight[pair], cells, w_a[ok])
+        w_ok = w_a[ok]
+        n = self.n_cells
+        wp = w_ok[:, None] * p_a[ok]
+        for k in range(wp.shape[1]):  # bincount: much faster than np.add.at
+            self._sums[pair][:, k] += np.bincount(cells, weights=wp[:, k], minlength=n)
+        self._weight[pair] += np.bincount(cells, weights=w_ok, minlength=n)
 
     def posterior(self, pair: int) -> FloatArray:
         """(n_cells, K) per-cell posterior of pair `pair` (the prior in untouched cells)."""

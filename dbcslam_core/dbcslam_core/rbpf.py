@@ -25,6 +25,7 @@ from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
     Mode,
+    ReducedSolution,
     ViolationScales,
     enumerate_hypotheses,
     solve_reduced,
@@ -57,7 +58,12 @@ from dbcslam_core.resampling import (
     normalise_log_weights,
 )
 from dbcslam_core.scenario import Disk, Scenario
-from dbcslam_core.transition import TransitionParams, mode_transition, soft_modes
+from dbcslam_core.transition import (
+    TransitionParams,
+    edge_consistency,
+    mode_transition,
+    soft_modes,
+)
 
 __all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
 
@@ -208,7 +214,6 @@ class FilterConfig:
                 # with an agile companion for starts and stops
                 base["joint_accel_std"] = 0.01
                 base["joint_maneuver_accel_std"] = 3.0
-                base["force_noise"] = 0.1
         else:
             msg = f"no preset for scenario kind {kind!r}; valid kinds are edge, gripper, push"
             raise ModelError(msg)
@@ -306,6 +311,19 @@ class DbcSlamFilter:
             n_vertices=len(scenario.body.vertices),
         )
         self._contact_pair = np.asarray(scenario.contact_pairs, dtype=np.int64)
+        # (c, d): contacts of adjacent polygon vertices on the same obstacle (edge partners)
+        n_vert = len(scenario.body.vertices)
+        partners = [
+            (a, b)
+            for a in range(len(pcs))
+            for b in range(len(pcs))
+            if a != b
+            and pcs[a].obstacle == pcs[b].obstacle
+            and pcs[a].vertex >= 0
+            and pcs[b].vertex >= 0
+            and (abs(pcs[a].vertex - pcs[b].vertex) in (1, n_vert - 1))
+        ]
+        self._edge_partners = np.asarray(partners, dtype=np.int64).reshape(-1, 2)
         obstacles = scenario.obstacles
         self._obstacle_names = tuple(o.name for o in obstacles)
         self._contact_obstacle = np.asarray([c.obstacle for c in pcs], dtype=np.int64)
@@ -507,6 +525,12 @@ class DbcSlamFilter:
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
         # 2. transition (softened NCP + persistence)
         soft = soft_modes(kin.phi, an, at, dt, cfg.transition)
+        if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", self.fric, self.modes[..., Mode.SEPARATED])
+            partner = np.zeros_like(prev_in)
+            for c, d in self._edge_partners:
+                partner[:, c] = np.maximum(partner[:, c], prev_in[:, d])
+            soft = edge_consistency(soft, kin.phi, an, dt, partner, cfg.transition)
         pred = mode_transition(
             self.modes,
             soft[:, None],
@@ -706,7 +730,7 @@ class DbcSlamFilter:
         self,
         force: ForceObservation,
         obstacle: int,
-        sol: Any,
+        sol: ReducedSolution,
         normal: FloatArray,
         sig2: FloatArray,
     ) -> FloatArray:

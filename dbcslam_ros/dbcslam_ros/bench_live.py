@@ -1,7 +1,9 @@
 """Live benchmark: the simulator node and the filter node as two processes, in real time.
 
-Run: ``python -m dbcslam_ros.bench_live [--scenarios edge gripper push] [--particles N]
-[--duration S] [--engine pybullet|core] [--offline] [--out DIR]``.
+Run: ``python -m dbcslam_ros.bench_live [--scenarios edge gripper push] [--particles N ...]
+[--duration S] [--engine pybullet|core] [--offline | --no-live] [--no-pusher-wrench]
+[--out DIR] [--logs DIR]`` (one run per scenario and particle count; -1 = the filter node's
+live default for the kind).
 
 For each scenario it starts ``python -m dbcslam_ros.filter_node`` and ``python -m
 sim_publisher.node`` (100 Hz, real-time pacing, default engine pybullet) on loopback in a
@@ -16,9 +18,12 @@ and stops both processes by PID (also on failure or Ctrl-C). Reported per scenar
   steps coasted over in catch-up;
 * mean position error |estimate - truth| next to the noise |observation - truth| over the same
   stamps (mm), and their ratio;
-* with ``--offline``: CPU time per model step (``time.process_time``, which another process's
-  load does not inflate, unlike wall time) of the same filter configuration on the same run,
-  fed through :class:`~dbcslam_ros.session.FilterSession` in one process without pacing.
+* with ``--offline`` (or only that, ``--no-live``): CPU time per model step
+  (``time.process_time``: another process's load inflates it much less than wall time) of
+  the same filter configuration on the same simulated run, fed through
+  :class:`~dbcslam_ros.session.FilterSession` in one process without pacing, plus the CPU
+  time to build and encode the output messages of a step, and the mean position error /
+  noise of that offline run (every pose answered).
 
 A run "keeps up" when at most 1 % of the received poses were dropped for backlog and the
 latency p95 is below the sample period. Writes ``bench_live.md`` and ``bench_live.json`` into

@@ -232,6 +232,8 @@ def run_demo(opts: DemoOptions) -> DemoResult:
                 f"seed:={seed}",
                 "-p",
                 f"marker_particles:={DEMO_MARKER_PARTICLES if opts.markers else 0}",
+                "-p",
+                "marker_period:=0.0",  # one marker message per estimate in the recording
             ),
             env,
         )

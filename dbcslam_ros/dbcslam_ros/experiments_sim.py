@@ -7,9 +7,9 @@ noise, the physics is deterministic), convert the run into a core ``Trajectory``
 particles=N)``, fed exactly as ``dbcslam_core.experiments.run_filter`` does: step k gets the
 observation k, the recorded mean wrench u[k-1] and the joints at t_k; on push also the
 pusher's F/T reading at t_k, ``/pusher/wrench``, as a ``ForceObservation`` with the
-simulator's force noise std), on the edge also the fixed-friction baseline frozen to each
-candidate and on push also DBC-SLAM without the force reading (``dbcslam_no_force``);
-score with ``dbcslam_core.metrics`` and write into ``--out`` (default
+preset's ``force_noise``, as the filter node does), on the edge also the fixed-friction
+baseline frozen to each candidate and on push also DBC-SLAM without the force reading
+(``dbcslam_no_force``); score with ``dbcslam_core.metrics`` and write into ``--out`` (default
 ``dbcslam_core/doc/results/sim``):
 
 * ``experiments_sim.md`` / ``experiments_sim.json``: targets (median over seeds vs
@@ -222,9 +222,10 @@ def sim_trajectory(
 
 class ForceFedFilter:
     """`DbcSlamFilter` adapter for `dbcslam_core.experiments.run_filter` that also passes the
-    pusher force reading of step k (row k of `force`, N) with std `std` (N per axis)."""
+    pusher force reading of step k (row k of `force`, N) with std `std` (N per axis; None =
+    the filter's ``FilterConfig.force_noise``, as the filter node does)."""
 
-    def __init__(self, filt: DbcSlamFilter, force: F64, std: float) -> None:
+    def __init__(self, filt: DbcSlamFilter, force: F64, std: float | None = None) -> None:
         self.filt = filt
         self.force = force
         self.std = std
@@ -256,7 +257,8 @@ def _segments_truth(
     assert trace.map_edges is not None
     edges = trace.map_edges
     seg = np.asarray(segments, dtype=np.float64)
-    fr = np.linspace(0.0, 1.0, 9)
+    fr = (np.arange(9) + 0.5) / 9.0  # interior points (index 4 = centre): a seam on a cell
+    # boundary does not make the cell impure
     pts = edges[:-1, None] + fr[None, :] * np.diff(edges)[:, None]
     idx = np.clip(np.searchsorted(seg[:, 1], pts, side="right"), 0, len(seg) - 1)
     # a point exactly on a seam belongs to the segment on its right (mu_at: x0 <= x < x1)
@@ -300,8 +302,8 @@ def run_task(
 ) -> tuple[RunRecord, RunTrace, float]:
     """Simulate, filter and score one (scenario, seed, method); returns record, trace, wall s.
 
-    method: ``dbcslam`` (on push with the pusher force reading, std = the simulator's force
-    noise), ``dbcslam_no_force`` (kinematics only) or ``fixed:<candidate index>`` (edge
+    method: ``dbcslam`` (on push with the pusher force reading, std = the preset's
+    ``force_noise``), ``dbcslam_no_force`` (kinematics only) or ``fixed:<candidate index>`` (edge
     fixed-friction baseline).
     """
     t0 = time.perf_counter()
@@ -309,7 +311,7 @@ def run_task(
     if method == DBCSLAM and scenario == "push":
         cfg = FilterConfig.preset("push", particles=particles)
         filt = DbcSlamFilter(tr.scenario, cfg, np.random.default_rng([seed, 1]))
-        fed = ForceFedFilter(filt, force, float(params.noise.force))
+        fed = ForceFedFilter(filt, force)
         trace = run_filter(fed, tr, method=DBCSLAM, seed=seed, particles=particles)
     elif method in (DBCSLAM, NO_FORCE):
         trace = run_dbcslam(tr, seed=seed, particles=particles)
@@ -457,7 +459,12 @@ def render_markdown(
         "(`sim_publisher`), whose contact model (penetration-based, iterative solver, "
         "force/slip thresholds for the true modes) is not the filter's. Values are medians "
         "over seeds; position RMSE is the per-axis RMS error of the centre of mass; steps "
-        "1..T-1 are scored. Edge friction-map truth: the simulator's segment table.",
+        "1..T-1 are scored. Edge friction-map truth: the simulator's segment table. The "
+        "seed draws only the sensor noise (pose, joints, pusher F/T) and the filter's random "
+        "numbers: the simulated physics is the same for every seed. Push: `dbcslam` gets the "
+        "pusher F/T reading (`/pusher/wrench`) as a force observation (std: the preset's "
+        "`force_noise`, as in the filter node), `dbcslam_no_force` does not. Step times are "
+        "offline wall times with the worker processes sharing the CPUs (not a live measurement).",
         "",
         "## Targets",
         "",

@@ -82,7 +82,8 @@ class EvalOptions:
     jobs: worker processes (1: in this process). noise_position / noise_yaw: added noise std
     (m, rad). seed: noise seed (per file combined with its name) and filter seed.
     figures: write the per-shape figures. progress: stream of the progress lines.
-    params: further filter node parameters.
+    params: further filter node parameters. pusher_candidates / surface_candidates: friction
+    candidates written to the scenarios (None: the importer's defaults).
     """
 
     data: Path = DEFAULT_DATA
@@ -96,6 +97,8 @@ class EvalOptions:
     figures: bool = True
     progress: IO[str] | None = None
     params: tuple[tuple[str, Any], ...] = ()
+    pusher_candidates: tuple[float, ...] | None = None
+    surface_candidates: tuple[float, ...] | None = None
 
 
 def resolve_data(data: str | Path) -> list[Path]:
@@ -142,7 +145,6 @@ def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[s
     """Import every file into ``bags_dir``; per push: name, shape, bag path, contact source."""
     from dbcslam_ros.cli.commands.import_mitpush import write_push_bag
     from dbcslam_ros.mitpush import (
-        ImportConfig,
         Outline,
         find_shapes_dir,
         load_outline,
@@ -150,9 +152,7 @@ def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[s
         resample_push,
     )
 
-    config = ImportConfig(
-        noise_position=opts.noise_position, noise_yaw=opts.noise_yaw, seed=opts.seed
-    )
+    config = _import_config(opts)
     outlines: dict[tuple[str, Path], Outline] = {}
     pushes: list[dict[str, Any]] = []
     for f in files:
@@ -177,6 +177,19 @@ def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[s
             }
         )
     return pushes
+
+
+def _import_config(opts: EvalOptions) -> Any:
+    from dbcslam_ros.mitpush import ImportConfig
+
+    cands: dict[str, Any] = {}
+    if opts.pusher_candidates is not None:
+        cands["pusher_candidates"] = tuple(opts.pusher_candidates)
+    if opts.surface_candidates is not None:
+        cands["surface_candidates"] = tuple(opts.surface_candidates)
+    return ImportConfig(
+        noise_position=opts.noise_position, noise_yaw=opts.noise_yaw, seed=opts.seed, **cands
+    )
 
 
 def _replay_one(bag: str, out: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -315,6 +328,8 @@ def _markdown(summary: dict[str, Any]) -> str:
             f"Command: `{s['command']}`  ",
             f"Data: {s['pushes']} push files from `{s['data']}`; added observation noise "
             f"{1000 * s['noise_position']:g} mm / {s['noise_yaw']:g} rad (seed {s['seed']}); "
+            f"friction candidates pusher {s['pusher_candidates']}, surface "
+            f"{s['surface_candidates']}; "
             f"{s['particles']} particles; filter uses /pusher/wrench: "
             f"{'yes' if s['filter_uses_pusher_wrench'] else 'no'}; wall time "
             f"{s['wall_s']:.0f} s on {s['jobs']} worker(s).",
@@ -487,6 +502,8 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
                 "noise_yaw": opts.noise_yaw,
                 "seed": opts.seed,
                 "params": params,
+                "pusher_candidates": list(_import_config(opts).pusher_candidates),
+                "surface_candidates": list(_import_config(opts).surface_candidates),
                 "filter_uses_pusher_wrench": uses_wrench,
                 "wall_s": 0.0,
             },
@@ -575,6 +592,22 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--noise-yaw", type=float, default=0.05, help="added yaw noise std, rad")
     parser.add_argument("--seed", type=int, default=0, help="noise and filter seed (0)")
+    parser.add_argument(
+        "--pusher-candidates",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="MU",
+        help="pusher-object friction candidates (default: the importer's, 0.1 0.2 0.3)",
+    )
+    parser.add_argument(
+        "--surface-candidates",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="MU",
+        help="object-surface friction candidates (default: the importer's, 0.1 0.2 0.3)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument(
         "-p",
@@ -589,6 +622,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; exit 0 on success, 2 on bad usage or data."""
+    from dbcslam_core.errors import DbcSlamError
     from dbcslam_ros.errors import BagError
 
     args = _parser().parse_args(argv)
@@ -611,13 +645,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures=not args.no_figures,
         progress=sys.stderr,
         params=tuple(extra),
+        pusher_candidates=None
+        if args.pusher_candidates is None
+        else tuple(args.pusher_candidates),
+        surface_candidates=(
+            None if args.surface_candidates is None else tuple(args.surface_candidates)
+        ),
     )
     command = "python -m dbcslam_ros.mitpush_eval " + " ".join(
         sys.argv[1:] if argv is None else list(argv)
     )
     try:
         run_eval(opts, command=command.strip())
-    except (UsageError, BagError) as err:
+    except (UsageError, BagError, DbcSlamError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     return 0

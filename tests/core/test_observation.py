@@ -170,7 +170,7 @@ def test_joint_smoother_maneuver_companion_is_smooth_and_follows_stops() -> None
         return float(np.std(v_err)), float(np.max(p_err))
 
     v_soft, _ = run(0.3, None)
-    v_stiff, p_stiff = run(0.01, None)
+    _, p_stiff = run(0.01, None)
     v_man, p_man = run(0.01, 3.0)
     assert v_man < 0.2 * v_soft
     assert p_man < 0.5 * p_stiff

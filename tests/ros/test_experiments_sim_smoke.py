@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from dbcslam_ros.experiments_sim import (  # noqa: E402
+from dbcslam_ros.experiments_sim import (
     SIM_TARGETS,
     ForceFedFilter,
     _segments_truth,

@@ -14,8 +14,10 @@ _DESCRIPTION = """\
 Start the filter node (node name dbcslam_filter). It waits for the latched /scenario
 (what the robot knows a priori; a changed /scenario reconfigures it), then turns every
 /object/pose into one estimate, using /object/wrench (the applied input, held from the
-start of the step) and /joint_states (jaw or pusher positions, interpolated to the pose
-stamp). It publishes /dbcslam/pose first, then /dbcslam/odometry, /dbcslam/contact_modes,
+start of the step), /joint_states (jaw or pusher positions, interpolated to the pose
+stamp) and, in push scenarios, /pusher/wrench (the F/T force on the pusher: an
+observation, taken at the pose stamp when a reading is within 1.5 samples). It publishes
+/dbcslam/pose first, then /dbcslam/odometry, /dbcslam/contact_modes,
 /dbcslam/friction, /dbcslam/friction_map, /dbcslam/markers; and /diagnostics every
 diagnostics_period s (ESS, live hypotheses, step time, latency from pose receipt to
 publication, input rate, rejected inputs by reason). It may start before or after the
@@ -28,10 +30,12 @@ dropped (reason backlog) and the next step catches up with at most catch_up_step
 steps, so the lag stays bounded.
 
 Parameters (ROS params file `dbcslam_filter: {ros__parameters: {...}}` or
---ros-args -p NAME:=VALUE): particles, ess_threshold, prune_threshold, parameter_model
+--ros-args -p NAME:=VALUE): particles (-1 = live default per scenario kind: edge 200,
+gripper 60, push 80), ess_threshold, prune_threshold, parameter_model
 (reuse|mixture|geometric), contact_weight, gating_threshold, seed, scenario_file,
 model_file (a model extension from `dbcslam discrepancy`), frame_id, marker_particles,
-diagnostics_period, catch_up_steps, max_gap, reset_after. SIGINT/SIGTERM stop it."""
+marker_period, diagnostics_period, catch_up_steps, use_pusher_wrench, force_noise, max_gap,
+reset_after. SIGINT/SIGTERM stop it."""
 
 _EXAMPLES = """\
   dbcslam filter
