@@ -8,6 +8,7 @@ tangential velocity of the body w.r.t. the obstacle along the contact tangent
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -27,6 +28,7 @@ __all__ = [
     "enumerate_hypotheses",
     "geometric_feasible",
     "solve_reduced",
+    "violation_score",
 ]
 
 
@@ -222,37 +224,7 @@ def solve_reduced(
     vt = (jt_a @ v_next[..., None])[..., 0] - vte
     gap_rate = np.broadcast_to(gap_rate, (*lead, n_c))
     vt = np.broadcast_to(vt, (*lead, n_c))
-    mu_b = np.broadcast_to(mu_a, (*lead, n_c))
-    sep_all = mdb == Mode.SEPARATED
-    v_sep = np.where(sep_all, np.maximum(0.0, -gap_rate), 0.0)
-    v_slip = np.where(
-        mdb == Mode.SLIDING_POS,
-        np.maximum(0.0, -vt),
-        np.where(mdb == Mode.SLIDING_NEG, np.maximum(0.0, vt), 0.0),
-    )
-    mag = np.abs(ln) + np.abs(lt) + sc.impulse_floor
-    i_neg = np.where(sep_all, 0.0, np.maximum(0.0, -ln)) / mag
-    stick_all = mdb == Mode.STICKING
-    if groups is None:
-        i_cone = np.where(stick_all, np.maximum(0.0, np.abs(lt) - mu_b * ln), 0.0) / mag
-        cone_sq = np.sum((i_cone / sc.impulse) ** 2, axis=-1)
-    else:
-        g = np.asarray(groups, dtype=np.int64)
-        onehot = (g[:, None] == np.unique(g)[None, :]).astype(np.float64)  # (C, G)
-        lt_g = np.einsum("...c,cg->...g", np.where(stick_all, lt, 0.0), onehot)
-        cap_g = np.einsum("...c,cg->...g", np.where(stick_all, mu_b * ln, 0.0), onehot)
-        mag_g = np.einsum(
-            "...c,cg->...g", np.where(stick_all, mag - sc.impulse_floor, 0.0), onehot
-        )
-        i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
-        cone_sq = np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
-    # Statically indeterminate assignments (more equality rows than dofs, e.g. a triangle
-    # wedged between both jaws) have a family of impulse solutions; the min-norm one computed
-    # here need not be the feasible one, so their impulse inequalities are not scored.
-    n_rows = np.sum(~sep_all, axis=-1) + np.sum(stick_all, axis=-1)
-    determinate = n_rows <= nv
-    imp_sq = np.where(determinate, np.sum((i_neg / sc.impulse) ** 2, axis=-1) + cone_sq, 0.0)
-    score = np.sum(((v_sep + v_slip) / sc.velocity) ** 2, axis=-1) + imp_sq
+    score = violation_score(mdb, ln, lt, gap_rate, vt, mu=mu_a, nv=nv, scales=sc, groups=groups)
     return ReducedSolution(
         v_next=np.asarray(v_next, dtype=np.float64),
         ln=ln,
@@ -265,6 +237,74 @@ def solve_reduced(
         if imp_resp is None
         else np.asarray(imp_resp.reshape(*lead, 2, n_c, nv), dtype=np.float64),
     )
+
+
+@functools.lru_cache(maxsize=64)
+def _group_onehot(groups: tuple[int, ...]) -> FloatArray:
+    """(C, G) membership of each contact in its obstacle group (cached: called per step)."""
+    g = np.asarray(groups, dtype=np.int64)
+    out = np.asarray((g[:, None] == np.unique(g)[None, :]), dtype=np.float64)
+    out.setflags(write=False)
+    return out
+
+
+def violation_score(
+    modes: npt.ArrayLike,
+    ln: npt.ArrayLike,
+    lt: npt.ArrayLike,
+    gap_rate: npt.ArrayLike,
+    vt: npt.ArrayLike,
+    *,
+    mu: npt.ArrayLike,
+    nv: int,
+    scales: ViolationScales | None = None,
+    groups: npt.ArrayLike | None = None,
+) -> FloatArray:
+    """Sum of squared scaled inequality violations (...) of reduced solutions (see
+    `solve_reduced`); all arguments (..., C) broadcast together (mu e.g. per friction
+    hypothesis), nv the velocity dofs (for the determinacy test)."""
+    sc = scales or ViolationScales()
+    md = np.asarray(modes, dtype=np.int64)
+    ln_a = np.asarray(ln, dtype=np.float64)
+    lt_a = np.asarray(lt, dtype=np.float64)
+    gr = np.asarray(gap_rate, dtype=np.float64)
+    vt_a = np.asarray(vt, dtype=np.float64)
+    mu_a = np.asarray(mu, dtype=np.float64)
+    shape = np.broadcast_shapes(md.shape, ln_a.shape, lt_a.shape, gr.shape, vt_a.shape, mu_a.shape)
+    mdb = np.broadcast_to(md, shape)
+    ln_b = np.broadcast_to(ln_a, shape)
+    lt_b = np.broadcast_to(lt_a, shape)
+    mu_b = np.broadcast_to(mu_a, shape)
+    sep_all = mdb == Mode.SEPARATED
+    v_sep = np.where(sep_all, np.maximum(0.0, -gr), 0.0)
+    v_slip = np.where(
+        mdb == Mode.SLIDING_POS,
+        np.maximum(0.0, -vt_a),
+        np.where(mdb == Mode.SLIDING_NEG, np.maximum(0.0, vt_a), 0.0),
+    )
+    mag = np.abs(ln_b) + np.abs(lt_b) + sc.impulse_floor
+    i_neg = np.where(sep_all, 0.0, np.maximum(0.0, -ln_b)) / mag
+    stick_all = mdb == Mode.STICKING
+    if groups is None:
+        i_cone = np.where(stick_all, np.maximum(0.0, np.abs(lt_b) - mu_b * ln_b), 0.0) / mag
+        cone_sq = np.sum((i_cone / sc.impulse) ** 2, axis=-1)
+    else:
+        onehot = _group_onehot(tuple(int(x) for x in np.asarray(groups).reshape(-1)))
+        lt_g = np.einsum("...c,cg->...g", np.where(stick_all, lt_b, 0.0), onehot)
+        cap_g = np.einsum("...c,cg->...g", np.where(stick_all, mu_b * ln_b, 0.0), onehot)
+        mag_g = np.einsum(
+            "...c,cg->...g", np.where(stick_all, mag - sc.impulse_floor, 0.0), onehot
+        )
+        i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
+        cone_sq = np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
+    # Statically indeterminate assignments (more equality rows than dofs, e.g. a triangle
+    # wedged between both jaws) have a family of impulse solutions; the min-norm one computed
+    # here need not be the feasible one, so their impulse inequalities are not scored.
+    n_rows = np.sum(~sep_all, axis=-1) + np.sum(stick_all, axis=-1)
+    determinate = n_rows <= nv
+    imp_sq = np.where(determinate, np.sum((i_neg / sc.impulse) ** 2, axis=-1) + cone_sq, 0.0)
+    score = np.sum(((v_sep + v_slip) / sc.velocity) ** 2, axis=-1) + imp_sq
+    return np.asarray(score, dtype=np.float64)
 
 
 def _solve_active(

@@ -32,7 +32,8 @@ loglik = -sum_{h, c} N_h / 2 log(SSE_{h,c} / N_h) (one variance per horizon and 
 component). Uncertainty: from the curvature of the profile, inflated by sqrt(horizon) for
 the overlapping rollouts (approximate).
 
-Comparison on the held-out data: NLL with the variances fitted on the training data,
+Comparison on the held-out data: profile Gaussian NLL of the held-out residuals (variance
+per horizon and component re-estimated on them, alike for every model),
 delta_loglik = NLL_nominal - NLL_extended (nats, summed). A candidate "beats the nominal
 model clearly" when delta_loglik > k/2 log(N) + margin (k parameters) AND the held-out
 position RMSE ratio nominal/extended >= min_gain. When the two best candidates both beat
@@ -106,7 +107,8 @@ class DiscrepancyConfig:
     per run (evenly thinned); window/order: local polynomial state estimate; grid: grid
     points per parameter search; margin (nats) and min_gain: the "clear" criteria; block:
     s, length of the interleaved hold-out blocks when no held-out runs are given (every
-    third block held out); effects: candidate effect names (None = `default_effects`).
+    third block held out); effects: candidate effect names (None = `default_effects`);
+    adaptive: one-sided smoothing windows at kinks (`smooth_states`).
     """
 
     horizon: int = 20
@@ -116,11 +118,12 @@ class DiscrepancyConfig:
     order: int = 2
     grid: int = 13
     margin: float = 10.0
-    min_gain: float = 1.1
+    min_gain: float = 1.2
     block: float = 0.5
     effects: tuple[str, ...] | None = None
     pgs_iterations: int = 200
     support_iterations: int = 4
+    adaptive: bool = False
 
 
 def default_effects(scenario: Scenario) -> tuple[str, ...]:
@@ -321,7 +324,7 @@ class Predictor:
                 ok = np.isfinite(obs[:, 2])
                 if np.any(ok):
                     obs[ok, 2] = np.unwrap(obs[ok, 2])
-            q, v = smooth_states(obs, sc.dt, cfg.window, cfg.order)
+            q, v = smooth_states(obs, sc.dt, cfg.window, cfg.order, adaptive=cfg.adaptive)
             cand = np.arange(cfg.window // 2, n - h - 1, max(cfg.stride, 1))
             cand = cand[np.all(np.isfinite(run.obs[cand]), axis=-1)]
             if cand.size > cfg.max_starts:
@@ -548,7 +551,10 @@ def score(pred: Predictor, res: list[F64]) -> Score:
     var = np.maximum(sse[0] / np.maximum(cnt[0], 1.0), 1e-18)
     ll = float(_profile_loglik(sse, cnt)[0])
     sse_h, cnt_h = _sse(res, he)
-    nll_sum = float(np.sum(0.5 * (cnt_h[0] * (np.log(var) + LOG2PI) + sse_h[0] / var)))
+    # held-out profile likelihood: each model's residual variance per (horizon, component)
+    # re-estimated on the held-out residuals (a nuisance parameter, treated alike for all
+    # models; robust to a held-out regime absent from training)
+    nll_sum = float(-_profile_loglik(sse_h, cnt_h)[0])
     n_h = float(np.sum(cnt_h[0]))
     rmse_h, rmse_hh = _rmse_pos(res, he) if n_h > 0 else (float("nan"), np.zeros(0))
     rmse_t, _ = _rmse_pos(res, tr)
@@ -678,6 +684,7 @@ class _Fitter:
         self.dt = float(sc.dt)
         self.extent = self._extent()
         self.patch_s: F64 = np.zeros(0)
+        self.bounds: dict[str, float] = {}
 
     def _extent(self) -> float:
         qs = np.concatenate([d.q0[:, :2] for d in self.pred.data])
@@ -723,6 +730,7 @@ class _Fitter:
             msg = f"cannot fit effect {effect!r}; known: {sorted(EFFECTS)}"
             raise ModelError(msg)
         lo, hi, log, default = self._scalar_range(effect)
+        self.bounds[effect] = hi
         name = EFFECTS[effect][0]
         if effect in ("mass_scale", "support_pressure"):
             make = self._model_level(effect)
@@ -786,8 +794,8 @@ class _Fitter:
             tab.append(np.sum(w, axis=(2, 3)).T)  # (S, G)
             tab0.append(np.sum(np.nan_to_num(r0[0, m] ** 2 / var), axis=(1, 2)))
             env = d.run.env[d.starts[m]]
-            # patch coordinate: s of the closest contact at mid-horizon of the observed path
-            mid = d.target[m][:, d.target.shape[1] // 2]
+            # patch coordinate: s of the closest contact at the first observed step
+            mid = d.target[m][:, 0]
             qm = np.where(np.isfinite(mid), mid, d.q0[m])
             kin = contact_kinematics(d.run.scenario, qm, env)
             cidx = np.argmin(kin.phi, axis=-1)
@@ -807,8 +815,20 @@ class _Fitter:
         tot = cum[jj] - cum[ii]  # (pairs, G)
         best = np.unravel_index(int(np.argmax(tot)), tot.shape)
         i0, j0 = int(ii[best[0]]), int(jj[best[0]])
-        x_min = float(s_sorted[i0])
-        x_max = float(s_sorted[j0 - 1])
+        # boundary candidates: the first/last position inside, or half way to the next one
+        # outside; the best combination on exact rollouts
+        lo_opts = [float(s_sorted[i0])]
+        if i0 > 0:
+            lo_opts.append(float(0.5 * (s_sorted[i0 - 1] + s_sorted[i0])))
+        hi_opts = [float(s_sorted[j0 - 1])]
+        if j0 < n_s:
+            hi_opts.append(float(0.5 * (s_sorted[j0 - 1] + s_sorted[j0])))
+        combos = np.asarray(
+            [[lo_, hi_, float(mus[best[1]])] for lo_ in lo_opts for hi_ in hi_opts if hi_ > lo_]
+            or [[lo_opts[0], lo_opts[0] + 1e-3, float(mus[best[1]])]]
+        )
+        ll_c = _train_ll(pred, pred.rollout(_mods_for("friction_patch", combos)))
+        x_min, x_max = (float(v) for v in combos[int(np.argmax(ll_c)), :2])
         if x_max <= x_min:
             x_max = x_min + 1e-3
         mu_p = float(mus[best[1]])
@@ -816,7 +836,7 @@ class _Fitter:
         n = self.cfg.grid
         cur = np.array([x_min, x_max, mu_p])
         se = np.zeros(3)
-        step = max(0.05 * self.extent, 0.01)
+        step = max(0.5 * (x_max - x_min), 0.05)
         for sweep in range(2):
             for c in (0, 1, 2):
                 if c == 2:
@@ -999,14 +1019,14 @@ def effect_size(  # noqa: PLR0911
 ) -> float:
     """Size of a fitted effect relative to the smallest that matters (>= 1: large enough).
 
-    factors: |log f| / log 1.1; viscous_damping: fraction of velocity lost over the horizon
+    factors: |log f| / log 1.15; viscous_damping: fraction of velocity lost over the horizon
     (b H dt / m) / 0.05; sensor_delay: seconds / (dt / 2); sensor_bias: position over twice
     the position noise (yaw over twice the yaw noise); friction_patch: |mu / mu_nom - 1| /
-    0.1; support_friction: mu / 0.02; support_pressure: rim_fraction / 0.1.
+    0.2; support_friction: mu / 0.02; support_pressure: rim_fraction / 0.1.
     """
     dt = float(scenario.dt)
     if effect in ("friction_scale", "mass_scale", "input_gain"):
-        return abs(math.log(params["factor"])) / math.log(1.1)
+        return abs(math.log(params["factor"])) / math.log(1.15)
     if effect == "viscous_damping":
         return params["b"] * horizon * dt / float(scenario.body.mass) / 0.05
     if effect == "sensor_delay":
@@ -1017,7 +1037,7 @@ def effect_size(  # noqa: PLR0911
         return max(math.hypot(params["x"], params["y"]) / (2 * pn), abs(params["yaw"]) / (2 * yn))
     if effect == "friction_patch":
         mu_nom = float(nominal_friction(scenario)[scenario.contact_pairs[0]])
-        return abs(params["mu"] / max(mu_nom, 1e-9) - 1.0) / 0.1
+        return abs(params["mu"] / max(mu_nom, 1e-9) - 1.0) / 0.2
     if effect == "support_friction":
         return params["mu"] / 0.02
     if effect == "support_pressure":
@@ -1079,6 +1099,9 @@ def analyse(
         size = effect_size(eff, params, sc0, cfg.horizon)
         clear = bool(delta > penalty + cfg.margin and ratio >= cfg.min_gain and size >= 1.0)
         note = "" if size >= 1.0 else f"effect too small to matter (size {size:.2f} < 1)"
+        if eff in fitter.bounds and params[EFFECTS[eff][0]] >= 0.999 * fitter.bounds[eff]:
+            clear = False
+            note = "estimate at the upper bound of the search range (not a plausible fit)"
         if eff == "friction_patch" and fitter.patch_coverage(params) > 0.9:
             clear = False
             note = "patch covers > 90% of the contact positions: a friction_scale"
@@ -1110,11 +1133,13 @@ def analyse(
             f"{' (clear)' if clear else ''}"
         )
     fits.sort(key=lambda c: -(c.delta_loglik - c.penalty))
-    # the most likely candidate must itself be clear; otherwise nothing is named
-    winner = fits[0] if fits and fits[0].clear else None
+    # candidates with a validity note (too small, at a bound, degenerate) do not compete;
+    # the most likely of the rest must itself be clear, otherwise nothing is named
+    valid = [c for c in fits if not c.note]
+    winner = valid[0] if valid and valid[0].clear else None
     ambiguous: tuple[str, ...] = ()
-    if winner is not None and len(fits) > 1 and fits[1].clear:
-        second = fits[1]
+    if winner is not None and len(valid) > 1 and valid[1].clear:
+        second = valid[1]
         top = winner.delta_loglik - winner.penalty
         gap = top - (second.delta_loglik - second.penalty)
         pair = {winner.effect, second.effect} == {"mass_scale", "input_gain"}
@@ -1129,7 +1154,7 @@ def analyse(
     resid = characterise(nom_pred, float(sc0.dt))
     if winner is None:
         verdict = "none"
-        best = fits[0] if fits else None
+        best = valid[0] if valid else None
         evidence = (
             f"nominal model predicts the held-out poses with position RMSE "
             f"{nom.heldout_rmse * 1e3:.3f} mm over {cfg.horizon * sc0.dt:.2f} s rollouts; "

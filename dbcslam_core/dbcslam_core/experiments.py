@@ -17,12 +17,15 @@ seeds produced by :func:`summarize`.
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import math
+import multiprocessing
+import os
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,21 +50,30 @@ from .rbpf import DbcSlamFilter, FilterConfig, FilterInput
 from .synthetic import EDGE_ROUGH, Trajectory, edge_mu_field, edge_trajectory, gripper_trajectory
 
 __all__ = [
+    "DBCSLAM",
     "SCENARIOS",
     "TARGETS",
     "ExperimentConfig",
     "ExperimentResults",
+    "FilterLike",
     "RunRecord",
     "RunTrace",
     "Target",
     "TargetCheck",
+    "edge_targets",
     "evaluate_targets",
+    "experiment_tasks",
+    "fixed_method_name",
     "make_trajectory",
+    "representative_seed",
+    "rmse_target",
     "run_black_box",
     "run_dbcslam",
     "run_experiments",
     "run_filter",
     "run_fixed_friction",
+    "run_parallel",
+    "run_task",
     "score",
     "summarize",
 ]
@@ -71,6 +83,10 @@ I64 = NDArray[np.int64]
 
 SCENARIOS: tuple[str, ...] = ("edge", "gripper")
 DBCSLAM = "dbcslam"
+"""Method label of DBC-SLAM runs (the fixed-friction baseline: :func:`fixed_method_name`)."""
+
+K = TypeVar("K", bound=Hashable)
+R = TypeVar("R")
 
 
 class _EstimateLike(Protocol):
@@ -181,7 +197,9 @@ class ExperimentConfig:
     scenarios: subset of ``SCENARIOS``; n_steps: truncate trajectories to this many samples
     (None = the full paper trajectories; for smoke tests); fixed_friction: also run the
     fixed-friction baseline on the edge, frozen to each candidate; filter_overrides: extra
-    ``FilterConfig`` fields per scenario kind (on top of ``FilterConfig.preset``).
+    ``FilterConfig`` fields per scenario kind (on top of ``FilterConfig.preset``); workers:
+    parallel processes (:func:`run_parallel`; the results do not depend on it, the step
+    times do).
     """
 
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
@@ -190,6 +208,7 @@ class ExperimentConfig:
     n_steps: int | None = None
     fixed_friction: bool = True
     filter_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    workers: int = 1
 
     def __post_init__(self) -> None:
         bad = [s for s in self.scenarios if s not in SCENARIOS]
@@ -205,6 +224,9 @@ class ExperimentConfig:
         if not self.seeds:
             msg = "seeds must not be empty"
             raise ModelError(msg)
+        if self.workers < 1:
+            msg = f"workers must be >= 1, got {self.workers}"
+            raise ModelError(msg)
 
 
 @dataclass
@@ -217,12 +239,22 @@ class ExperimentResults:
 
     def representative_seed(self, scenario: str, metric: str = "position_rmse") -> int:
         """The seed whose DBC-SLAM `metric` is the median over seeds (lower median)."""
-        recs = [r for r in self.records if r.scenario == scenario and r.method == DBCSLAM]
-        if not recs:
-            msg = f"no DBC-SLAM records for scenario {scenario!r}"
-            raise ModelError(msg)
-        recs.sort(key=lambda r: r.metrics[metric])
-        return recs[(len(recs) - 1) // 2].seed
+        return representative_seed(self.records, scenario, metric)
+
+
+def representative_seed(
+    records: Sequence[RunRecord],
+    scenario: str,
+    metric: str = "position_rmse",
+    method: str = DBCSLAM,
+) -> int:
+    """The seed whose `method` `metric` is the (lower) median over the seeds of `scenario`."""
+    recs = [r for r in records if r.scenario == scenario and r.method == method]
+    if not recs:
+        msg = f"no {method!r} records for scenario {scenario!r}"
+        raise ModelError(msg)
+    recs.sort(key=lambda r: r.metrics[metric])
+    return recs[(len(recs) - 1) // 2].seed
 
 
 # --------------------------------------------------------------------------- running
@@ -511,48 +543,141 @@ def score(trace: RunTrace) -> dict[str, float]:
 
 
 # --------------------------------------------------------------------------- the driver
+def _single_threaded_blas() -> None:
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def run_parallel(
+    jobs: Sequence[tuple[K, Callable[[], R]]],
+    *,
+    workers: int = 1,
+    on_done: Callable[[K, R], None] | None = None,
+) -> dict[K, R]:
+    """Run `jobs` ((key, zero-argument callable) pairs) on `workers` processes.
+
+    workers == 1 runs them in order in this process; otherwise a spawn-context process pool
+    (BLAS limited to one thread per worker) runs them and the callables must be picklable
+    (``functools.partial`` of a module-level function). `on_done(key, result)` is called in
+    this process as each job finishes (completion order). Returns {key: result} in job order;
+    the first exception of a job is re-raised.
+    """
+    if workers < 1:
+        msg = f"workers must be >= 1, got {workers}"
+        raise ModelError(msg)
+    done: dict[K, R] = {}
+    if workers == 1 or len(jobs) <= 1:
+        for key, fn in jobs:
+            done[key] = fn()
+            if on_done is not None:
+                on_done(key, done[key])
+        return done
+    ctx = multiprocessing.get_context("spawn")
+    with cf.ProcessPoolExecutor(
+        min(workers, len(jobs)), mp_context=ctx, initializer=_single_threaded_blas
+    ) as ex:
+        futs = {ex.submit(fn): key for key, fn in jobs}
+        for fut in cf.as_completed(futs):
+            key = futs[fut]
+            done[key] = fut.result()
+            if on_done is not None:
+                on_done(key, done[key])
+    return {key: done[key] for key, _ in jobs}
+
+
+def experiment_tasks(config: ExperimentConfig) -> list[tuple[str, int, str]]:
+    """The (scenario, seed, method) runs of `config`; method ``dbcslam`` or ``fixed:<k>``
+    (edge fixed-friction baseline frozen to candidate index k)."""
+    out: list[tuple[str, int, str]] = []
+    for scen in config.scenarios:
+        n_cand = len(_paper_candidates(scen))
+        for seed in config.seeds:
+            out.append((scen, seed, DBCSLAM))
+            if scen == "edge" and config.fixed_friction:
+                out += [(scen, seed, f"fixed:{k}") for k in range(n_cand)]
+    return out
+
+
+def _paper_candidates(scenario: str) -> tuple[float, ...]:
+    """Friction candidates of pair 0 of the paper scenario `scenario` (as synthesized)."""
+    from .scenario import edge_scenario, gripper_scenario
+
+    if scenario not in SCENARIOS:
+        msg = f"unknown scenario {scenario!r}; valid scenarios are {list(SCENARIOS)}"
+        raise ModelError(msg)
+    sc = edge_scenario() if scenario == "edge" else gripper_scenario()
+    return tuple(float(c) for c in sc.friction.candidates[0])
+
+
+def run_task(
+    scenario: str,
+    seed: int,
+    method: str,
+    *,
+    particles: int = 500,
+    n_steps: int | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> tuple[RunRecord, RunTrace, float]:
+    """Synthesize, filter and score one run; returns (record, trace, wall time s).
+
+    method: ``dbcslam`` or ``fixed:<candidate index>`` (see :func:`experiment_tasks`).
+    """
+    t0 = time.perf_counter()
+    tr = make_trajectory(scenario, seed, n_steps)
+    if method == DBCSLAM:
+        trace = run_dbcslam(tr, seed=seed, particles=particles, overrides=overrides)
+    elif method.startswith("fixed:") and method[6:].isdigit():
+        trace = run_fixed_friction(
+            tr, int(method[6:]), seed=seed, particles=particles, overrides=overrides
+        )
+    else:
+        msg = f"unknown method {method!r}; valid: {DBCSLAM!r} or 'fixed:<candidate index>'"
+        raise ModelError(msg)
+    rec = RunRecord(scenario, seed, trace.method, particles, score(trace))
+    return rec, trace, time.perf_counter() - t0
+
+
 def run_experiments(
     config: ExperimentConfig | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> ExperimentResults:
-    """Run every (scenario, seed, method) of `config`; `progress` receives one-line messages."""
+    """Run every (scenario, seed, method) of `config` on ``config.workers`` processes;
+    `progress` receives one-line messages. Records are in task order."""
     cfg = config if config is not None else ExperimentConfig()
     res = ExperimentResults(cfg)
     say = progress if progress is not None else (lambda _msg: None)
-    for scen in cfg.scenarios:
-        overrides = cfg.filter_overrides.get(scen, {})
-        for seed in cfg.seeds:
-            tr = make_trajectory(scen, seed, cfg.n_steps)
-            runs: list[tuple[str, Callable[[], RunTrace]]] = [
-                (
-                    DBCSLAM,
-                    partial(
-                        run_dbcslam, tr, seed=seed, particles=cfg.particles, overrides=overrides
-                    ),
-                )
-            ]
-            if scen == "edge" and cfg.fixed_friction:
-                for k, mu in enumerate(tr.scenario.friction.candidates[0]):
-                    fn_k = partial(
-                        run_fixed_friction,
-                        tr,
-                        k,
-                        seed=seed,
-                        particles=cfg.particles,
-                        overrides=overrides,
-                    )
-                    runs.append((fixed_method_name(mu), fn_k))
-            for name, fn in runs:
-                t0 = time.perf_counter()
-                trace = fn()
-                metrics = score(trace)
-                res.traces[(scen, seed, name)] = trace
-                res.records.append(RunRecord(scen, seed, name, cfg.particles, metrics))
-                say(
-                    f"{scen:8s} seed {seed} {name:14s} {time.perf_counter() - t0:6.1f} s  "
-                    f"pos RMSE {metrics['position_rmse'] * 1e3:7.2f} mm  "
-                    f"contact {metrics['contact_accuracy']:.3f}"
-                )
+    tasks = experiment_tasks(cfg)
+    n_done = 0
+
+    def report(key: tuple[str, int, str], out: tuple[RunRecord, RunTrace, float]) -> None:
+        nonlocal n_done
+        n_done += 1
+        rec, _, wall = out
+        m = rec.metrics
+        say(
+            f"[{n_done:2d}/{len(tasks)}] {key[0]:8s} seed {key[1]} {rec.method:14s} "
+            f"{wall:6.1f} s  pos RMSE {m['position_rmse'] * 1e3:7.2f} mm  "
+            f"contact {m['contact_accuracy']:.3f}"
+        )
+
+    jobs = [
+        (
+            key,
+            partial(
+                run_task,
+                *key,
+                particles=cfg.particles,
+                n_steps=cfg.n_steps,
+                overrides=cfg.filter_overrides.get(key[0]),
+            ),
+        )
+        for key in tasks
+    ]
+    done = run_parallel(jobs, workers=cfg.workers, on_done=report)
+    for key in tasks:
+        rec, trace, _ = done[key]
+        res.records.append(rec)
+        res.traces[(key[0], key[1], rec.method)] = trace
     return res
 
 
@@ -609,24 +734,47 @@ class TargetCheck:
         }
 
 
+def rmse_target(scenario: str, metric: str, ratio: float, subject: str = "") -> Target:
+    """``<subject>position|yaw RMSE <= ratio x noise std`` on ``position_rmse_ratio`` or
+    ``yaw_rmse_ratio`` (`metric`: ``position`` or ``yaw``)."""
+    if metric not in ("position", "yaw"):
+        msg = f"metric must be 'position' or 'yaw', got {metric!r}"
+        raise ModelError(msg)
+    label = f"{subject}{metric} RMSE <= {ratio:g} x noise std"
+    return Target(scenario, label, f"{metric}_rmse_ratio", "<=", ratio)
+
+
+def edge_targets(position_ratio: float = 0.5) -> tuple[Target, ...]:
+    """The edge targets shared by the synthetic and the pybullet experiments: position RMSE
+    <= `position_ratio` x noise, in-contact >= 95 %, stick/slide >= 90 %, friction map >= 90 %
+    of slid cells, fixed-friction RMSE >= 2 x DBC-SLAM (better candidate)."""
+    return (
+        rmse_target("edge", "position", position_ratio),
+        Target(
+            "edge", "in-contact classification >= 95% of steps", "contact_accuracy", ">=", 0.95
+        ),
+        Target(
+            "edge", "stick/slide >= 90% of in-contact steps", "stick_slide_accuracy", ">=", 0.90
+        ),
+        Target(
+            "edge",
+            "friction map: true mu posterior > 0.5 in >= 90% of slid cells",
+            "friction_map_accuracy",
+            ">=",
+            0.90,
+        ),
+        Target(
+            "edge",
+            "fixed-friction RMSE >= 2 x DBC-SLAM (better candidate)",
+            "fixed_rmse_ratio_best",
+            ">=",
+            2.0,
+        ),
+    )
+
+
 TARGETS: tuple[Target, ...] = (
-    Target("edge", "position RMSE <= 0.5 x noise std", "position_rmse_ratio", "<=", 0.5),
-    Target("edge", "in-contact classification >= 95% of steps", "contact_accuracy", ">=", 0.95),
-    Target("edge", "stick/slide >= 90% of in-contact steps", "stick_slide_accuracy", ">=", 0.90),
-    Target(
-        "edge",
-        "friction map: true mu posterior > 0.5 in >= 90% of slid cells",
-        "friction_map_accuracy",
-        ">=",
-        0.90,
-    ),
-    Target(
-        "edge",
-        "fixed-friction RMSE >= 2 x DBC-SLAM (better candidate)",
-        "fixed_rmse_ratio_best",
-        ">=",
-        2.0,
-    ),
+    *edge_targets(0.5),
     Target(
         "edge",
         "fixed-friction RMSE / DBC-SLAM (worse candidate)",
@@ -641,8 +789,8 @@ TARGETS: tuple[Target, ...] = (
         ">=",
         0.95,
     ),
-    Target("gripper", "position RMSE <= 0.5 x noise std", "position_rmse_ratio", "<=", 0.5),
-    Target("gripper", "yaw RMSE <= 0.5 x noise std", "yaw_rmse_ratio", "<=", 0.5),
+    rmse_target("gripper", "position", 0.5),
+    rmse_target("gripper", "yaw", 0.5),
     Target("gripper", "contact-mode accuracy >= 90%", "contact_mode_accuracy", ">=", 0.90),
     Target(
         "gripper",
@@ -652,6 +800,7 @@ TARGETS: tuple[Target, ...] = (
         math.nan,
     ),
 )
+"""Issue 3's targets (medians over seeds)."""
 
 
 def _fixed_ratios(

@@ -345,6 +345,10 @@ class DbcSlamFilter:
         else:
             beta = np.indices(self._n_cand).reshape(self.n_pairs, -1).T.astype(np.int64)
         self._beta = beta  # (B, pairs) candidate index per pair
+        self._beta_onehot = [
+            (beta[:, p, None] == np.arange(self._k_max)[None, :]).astype(np.float64)
+            for p in range(self.n_pairs)
+        ]  # per pair (B, Kmax): joint hypothesis -> the pair's candidate
         self.n_b = beta.shape[0]
         cand = [np.asarray(c, dtype=np.float64) for c in fr.candidates]
         self._mu = np.stack(
@@ -562,21 +566,13 @@ class DbcSlamFilter:
         n_live = pi.size
         slot = np.full((n_p, n_k), -1, dtype=np.int64)
         slot[pi, ki] = np.arange(n_live)
-        sol = solve_reduced(
-            modes_k[pi, ki][:, None, :],
-            v_free[pi][:, None, :] if v_free_b is None else v_free_b[pi],
-            inv_mass=self._inv_mass,
-            jn=kin.Jn[pi][:, None],
-            jt=kin.Jt[pi][:, None],
-            phi=kin.phi[pi][:, None],
-            vn_env=kin.vn_env[pi][:, None],
-            vt_env=kin.vt_env[pi][:, None],
-            mu=self._mu[None],
-            dt=dt,
-            scales=self._scales,
-            groups=self._layout.obstacle,
-            mass=None if m_eff is None else m_eff[pi],
-            impulse_sensitivity=force is not None,
+        sol = self._solve_entries(
+            modes_k[pi, ki],
+            v_free[pi] if v_free_b is None else v_free_b[pi],
+            kin,
+            pi,
+            None if m_eff is None else m_eff[pi],
+            sensitivity=force is not None,
         )
         v_h = sol.v_next  # (N, B, nv)
         l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
@@ -707,6 +703,42 @@ class DbcSlamFilter:
         )
 
     # ------------------------------------------------------------------------ helpers
+    def _solve_entries(
+        self,
+        modes: IntArray,
+        v_free: FloatArray,
+        kin: Any,
+        pi: IntArray,
+        mass: FloatArray | None,
+        *,
+        sensitivity: bool,
+    ) -> ReducedSolution:
+        """Reduced dynamics of the N live entries x B friction hypotheses -> lead (N, B).
+
+        modes (N, C); v_free (N, nv) or (N, B, nv) (support friction); kin at the particles,
+        pi (N,) the entries' particles; mass (N, B, nv, nv) or None. (Solving the
+        beta-independent entries without sliding contacts once and re-scoring them per beta
+        with `violation_score` was measured: no gain, the batched solve is not the
+        bottleneck.)
+        """
+        vf = v_free if v_free.ndim == 3 else v_free[:, None, :]
+        return solve_reduced(
+            modes[:, None, :],
+            vf,
+            inv_mass=self._inv_mass,
+            jn=kin.Jn[pi][:, None],
+            jt=kin.Jt[pi][:, None],
+            phi=kin.phi[pi][:, None],
+            vn_env=kin.vn_env[pi][:, None],
+            vt_env=kin.vt_env[pi][:, None],
+            mu=self._mu[None],
+            dt=self.dt,
+            scales=self._scales,
+            groups=self._layout.obstacle,
+            mass=mass,
+            impulse_sensitivity=sensitivity,
+        )
+
     def _force_obstacle(self, force: ForceObservation) -> int:
         """Index of the obstacle a force reading refers to (validated)."""
         if force.obstacle is None:
@@ -767,7 +799,7 @@ class DbcSlamFilter:
             if self.config.frozen_friction is not None:
                 out[:, p, self.config.frozen_friction] = 1.0
             else:
-                np.add.at(out[:, p, :].T, self._beta[:, p], fric_joint.T)
+                out[:, p, :] = fric_joint @ self._beta_onehot[p]
         return out
 
     def _predict_friction(

@@ -29,7 +29,6 @@ and prints the Markdown table.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -51,6 +50,7 @@ from dbcslam_core.experiments import (
     score,
 )
 from dbcslam_core.synthetic import Trajectory
+from dbcslam_ros.experiments import command_line, progress_printer, utc_now, write_json
 
 __all__ = ["contact_window", "main", "slice_trajectory"]
 
@@ -204,7 +204,8 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
         "# DBC-SLAM benchmark",
         "",
         f"Command: `{command}`  ",
-        f"Machine: {meta['machine']}; numpy {meta['numpy']}; {meta['cpus']} CPUs; 1-min load "
+        f"Date: {meta.get('date_utc', 'n/a')}; machine: {meta['machine']}; "
+        f"numpy {meta['numpy']}; {meta['cpus']} CPUs; 1-min load "
         f"average before/after {meta['loadavg_1min_before_after'][0]:.1f}/"
         f"{meta['loadavg_1min_before_after'][1]:.1f} (other jobs share the CPUs). Median "
         f"per-step wall time after {meta['warmup']} warm-up steps (smallest of "
@@ -253,18 +254,6 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
             )
     lines.append("")
     return "\n".join(lines)
-
-
-def _json_safe(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.generic):
-        return _json_safe(x.item())
-    return x
 
 
 def _ints(text: str) -> list[int]:
@@ -323,12 +312,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 2
 
-    def say(msg: str) -> None:
-        if not args.quiet:
-            print(msg, flush=True)
-
-    argv_list = list(sys.argv[1:] if argv is None else argv)
-    command = " ".join(["python -m dbcslam_ros.bench", *argv_list])
+    say = progress_printer(args.quiet)
+    command = command_line("python -m dbcslam_ros.bench", argv)
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     result = run_bench(
@@ -343,6 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     result["meta"] = {
         "command": command,
+        "date_utc": utc_now(),
         "machine": f"{platform.machine()} {platform.processor() or platform.system()}",
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -356,9 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     md = render_markdown(result, command)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bench.md").write_text(md, encoding="utf-8")
-    (args.out / "bench.json").write_text(
-        json.dumps(_json_safe(result), indent=2) + "\n", encoding="utf-8"
-    )
+    write_json(args.out / "bench.json", result)
     print(md)
     say(f"wrote {args.out / 'bench.md'} and bench.json in {result['meta']['elapsed_s']:.0f} s")
     return 0

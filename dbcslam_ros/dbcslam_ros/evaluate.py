@@ -31,7 +31,10 @@ Metrics (JSON keys; SI units):
   "P(not separated) > 0.5" equals the flag's "in contact" (``1 - data[c, 0] > 0.5``);
   ``contact_flag_recall`` (over flagged in-contact entries), ``contact_flag_specificity``
   (over flagged separated entries), ``contact_flag_in_contact_fraction`` and
-  ``contact_estimated_in_contact_fraction``, ``contact_flag_entries``.
+  ``contact_estimated_in_contact_fraction``, ``contact_flag_entries``. Diagnostic only (not
+  the filter's mode estimate): ``contact_flag_agreement_touch`` scores the readout "P(not
+  separated) > 0.5 or the estimated gap (mean pose, ``/joint_states``) < ``TOUCH_TOL``",
+  which counts a pusher resting against the object at zero force as contact.
 * ``friction_map_accuracy`` (edge only): over the cells the body truly slid across, the
   fraction whose final map probability of the true candidate exceeds 0.5.
 * ``estimates``, ``matched``, ``observations``; ``step_time_ms_mean`` (mean over the
@@ -63,6 +66,7 @@ __all__ = [
     "BagArrays",
     "FrictionGrid",
     "MissingTopicsError",
+    "contact_flag_metrics",
     "evaluate_bag",
     "load_bag_arrays",
     "match_stamps",
@@ -83,8 +87,12 @@ TRUTH_TOPICS: tuple[str, ...] = ("/truth/object/pose", "/truth/contact_modes", "
 #: Measured (not simulated) contact flag and pusher force topics.
 FLAG_TOPIC = "/pusher/contact"
 PUSHER_WRENCH_TOPIC = "/pusher/wrench"
+#: Gap (m) below which the touching readout of ``contact_flag_agreement_touch`` counts a
+#: contact as closed.
+TOUCH_TOL = 0.001
 _READ_TOPICS = (
     "/scenario",
+    "/joint_states",
     "/object/pose",
     "/diagnostics",
     FLAG_TOPIC,
@@ -133,6 +141,8 @@ class BagArrays:
         flag_t, flag: measured contact flag (/pusher/contact): stamps (log time) and (T'', C)
             bool "in contact" per scenario contact (None if absent).
         force_t, force: /pusher/wrench stamps and (T''', 3) [fx, fy, tau_z] (N, N m).
+        joint_t, joints: /joint_states stamps and (T'''', E) positions in the order of the
+            scenario's joints (empty if absent or the names do not match).
     """
 
     path: Path
@@ -154,6 +164,8 @@ class BagArrays:
     flag: NDArray[np.bool_] | None = None
     force_t: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     force: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    joint_t: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    joints: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
     counts: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -241,6 +253,7 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
     obs: list[tuple[int, tuple[float, float, float]]] = []
     flags: list[tuple[int, FloatArray]] = []
     forces: list[tuple[int, tuple[float, float, float]]] = []
+    joints: list[tuple[int, dict[str, float]]] = []
     with open_bag(p, salvage=salvage) as reader:
         out.counts = reader.counts()
         for raw, msg in reader.decoded(t for t in _READ_TOPICS if out.counts.get(t)):
@@ -280,6 +293,13 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
                 w = msg.wrench
                 forces.append(
                     (_stamp(msg.header), (float(w.force.x), float(w.force.y), float(w.torque.z)))
+                )
+            elif topic == "/joint_states":
+                joints.append(
+                    (
+                        _stamp(msg.header),
+                        dict(zip(msg.name, (float(v) for v in msg.position), strict=False)),
+                    )
                 )
             elif topic == "/object/pose":
                 obs.append((_stamp(msg.header), _planar(msg.pose)))
@@ -329,6 +349,11 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
         if kept:
             out.flag_t = np.asarray([lt for lt, _ in kept], dtype=np.int64)
             out.flag = np.stack([1.0 - a[:, 0] > 0.5 for _, a in kept])
+    names = list(out.scenario.joints) if out.scenario is not None else []
+    full = [(t, [j[n] for n in names]) for t, j in joints if names and all(n in j for n in names)]
+    if full:
+        out.joint_t = np.asarray([t for t, _ in full], dtype=np.int64)
+        out.joints = np.asarray([v for _, v in full], dtype=np.float64)
     if forces:
         out.force_t = np.asarray([s for s, _ in forces], dtype=np.int64)
         out.force = np.asarray([v for _, v in forces], dtype=np.float64)
@@ -475,7 +500,33 @@ def contact_flag_metrics(arr: BagArrays, tol_ns: int) -> dict[str, Any]:
     )
     out["contact_flag_in_contact_fraction"] = _round(float(np.mean(flag)), 4)
     out["contact_estimated_in_contact_fraction"] = _round(float(np.mean(est)), 4)
+    gap = _estimated_gaps(arr, i_est, tol_ns)
+    if gap is not None:
+        ok = np.isfinite(gap)
+        touch = est | (gap < TOUCH_TOL)
+        if np.any(ok.all(axis=1)):
+            rows = ok.all(axis=1)
+            out["contact_flag_agreement_touch"] = _round(
+                float(np.mean(touch[rows] == flag[rows])), 4
+            )
+            out["touch_tol_m"] = TOUCH_TOL
     return out
+
+
+def _estimated_gaps(arr: BagArrays, i_est: IntArray, tol_ns: int) -> FloatArray | None:
+    """Gap (m) of every contact at the estimated mean pose and the joint positions of each
+    estimate in ``i_est`` (NaN where no joint reading matches); None without joints."""
+    sc = arr.scenario
+    if sc is None or arr.joint_t.size == 0 or i_est.size == 0:
+        return None
+    from dbcslam_core.geometry import contact_kinematics
+
+    k, j = match_stamps(arr.est_t[i_est], arr.joint_t, tol_ns)
+    gap = np.full((i_est.size, sc.n_contacts), np.nan)
+    if k.size:
+        q = arr.est_pose[i_est[k]][:, : sc.nq]
+        gap[k] = contact_kinematics(sc, q, arr.joints[j]).phi
+    return gap
 
 
 def _diagnostics_summary(arr: BagArrays) -> dict[str, Any]:

@@ -80,6 +80,7 @@ __all__ = [
     "render_markdown",
     "run_sim_experiments",
     "run_task",
+    "save_push_figures",
     "sim_trajectory",
     "write_outputs",
 ]
@@ -564,8 +565,107 @@ def write_outputs(
                         baseline_label=f"fixed friction mu = {mu} (better of the two)",
                     )
                 paths += save_edge_figures(trace, out_dir, prefix="sim_edge")
+            elif scen == "push":
+                paths += save_push_figures(trace, out_dir)
             else:
-                paths += save_gripper_figures(trace, out_dir, prefix=f"sim_{scen}")
+                paths += save_gripper_figures(trace, out_dir, prefix="sim_gripper")
+    return paths
+
+
+def save_push_figures(trace: RunTrace, out_dir: Path, prefix: str = "sim_push") -> list[Path]:
+    """Figures of one push run; returns the PNG paths.
+
+    ``{prefix}_trajectory.png`` (object centre, x-y), ``{prefix}_yaw.png`` (yaw vs time),
+    ``{prefix}_contact.png`` (P(pusher contact) and P(sticking | contact), truth shaded),
+    ``{prefix}_friction.png`` (pusher-pair friction posterior) and ``{prefix}_overview.png``.
+    """
+    import matplotlib.pyplot as plt
+
+    from dbcslam_ros.plotting import (
+        plot_contact_probability,
+        plot_friction_posterior,
+        plot_stick_probability,
+        plot_trajectory_xy,
+        plot_value_vs_time,
+    )
+
+    t = trace.t
+    pm = trace.est_modes[:, 0]  # (T', 4) pusher contact
+    p_contact = 1.0 - pm[:, Mode.SEPARATED]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p_stick = np.where(p_contact > 1e-9, pm[:, Mode.STICKING] / p_contact, np.nan)
+    true_contact = trace.true_modes[:, 0] != Mode.SEPARATED
+    true_stick = trace.true_modes[:, 0] == Mode.STICKING
+    ti = trace.true_friction_index
+    mu_txt = "" if ti < 0 else f" (true {trace.candidates[ti]:g})"
+
+    def _xy(ax: Any) -> None:
+        plot_trajectory_xy(
+            ax,
+            trace.true_q[:, :2],
+            trace.obs_q[:, :2],
+            trace.est_q[:, :2],
+            title=f"Push: object centre of mass (seed {trace.seed})",
+        )
+
+    def _yaw(ax: Any) -> None:
+        plot_value_vs_time(
+            ax,
+            t,
+            trace.true_q[:, 2],
+            trace.obs_q[:, 2],
+            trace.est_q[:, 2],
+            shade=true_contact,
+            shade_label="true pusher contact",
+            ylabel="yaw [rad]",
+            title="Push: object orientation",
+        )
+
+    def _contact(ax: Any) -> None:
+        plot_contact_probability(ax, t, p_contact, true_contact, title="Push: P(pusher contact)")
+
+    def _stick(ax: Any) -> None:
+        plot_stick_probability(
+            ax, t, p_stick, true_stick, title="Push: P(sticking | pusher contact)"
+        )
+
+    def _fric(ax: Any) -> None:
+        plot_friction_posterior(
+            ax,
+            t,
+            trace.friction_post,
+            trace.candidates,
+            highlight=ti if ti >= 0 else None,
+            shade=true_contact,
+            shade_label="true pusher contact",
+            title=f"Push: pusher friction posterior{mu_txt}",
+        )
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    singles: list[tuple[str, tuple[float, float], list[Callable[[Any], None]]]] = [
+        ("trajectory", (5.0, 4.2), [_xy]),
+        ("yaw", (6.0, 3.6), [_yaw]),
+        ("contact", (11.0, 3.6), [_contact, _stick]),
+        ("friction", (6.0, 3.6), [_fric]),
+    ]
+    paths: list[Path] = []
+    for name, size, panels in singles:
+        fig, axs = plt.subplots(1, len(panels), figsize=size, squeeze=False)
+        for ax, draw in zip(axs[0], panels, strict=True):
+            draw(ax)
+        fig.tight_layout()
+        paths.append(out_dir / f"{prefix}_{name}.png")
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+    fig, axs = plt.subplots(2, 3, figsize=(15.6, 7.2), squeeze=False)
+    flat = list(axs.ravel())
+    for ax, draw in zip(flat, [_xy, _yaw, _fric, _contact, _stick], strict=False):
+        draw(ax)
+    flat[-1].set_axis_off()
+    fig.tight_layout()
+    paths.append(out_dir / f"{prefix}_overview.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
     return paths
 
 

@@ -83,7 +83,8 @@ class EvalOptions:
     (m, rad). seed: noise seed (per file combined with its name) and filter seed.
     figures: write the per-shape figures. progress: stream of the progress lines.
     params: further filter node parameters. pusher_candidates / surface_candidates: friction
-    candidates written to the scenarios (None: the importer's defaults).
+    candidates written to the scenarios (None: the importer's defaults). reuse: re-evaluate
+    the replays already in ``work`` (a previous run's) instead of importing and replaying.
     """
 
     data: Path = DEFAULT_DATA
@@ -99,6 +100,7 @@ class EvalOptions:
     params: tuple[tuple[str, Any], ...] = ()
     pusher_candidates: tuple[float, ...] | None = None
     surface_candidates: tuple[float, ...] | None = None
+    reuse: bool = False
 
 
 def resolve_data(data: str | Path) -> list[Path]:
@@ -192,6 +194,42 @@ def _import_config(opts: EvalOptions) -> Any:
     )
 
 
+def _candidates(pushes: list[dict[str, Any]], pair: str) -> list[float] | None:
+    """Friction candidates of ``pair`` in the evaluated scenarios (None if absent)."""
+    for entry in pushes[0]["metrics"].get("friction", []) if pushes else []:
+        if entry.get("pair") == pair:
+            return [float(c) for c in entry["candidates"]]
+    return None
+
+
+def _reevaluate(bags_dir: Path, replays_dir: Path) -> list[dict[str, Any]]:
+    """Pushes of an earlier run (its imported bags and replays), evaluated again."""
+    from dbcslam_ros.bag.metadata import load_metadata
+    from dbcslam_ros.evaluate import evaluate_bag
+
+    pushes: list[dict[str, Any]] = []
+    for rep in sorted(d for d in replays_dir.iterdir() if (d / "metrics.json").exists()):
+        meta = load_metadata(bags_dir / rep.name / "metadata.yaml")
+        old = json.loads((rep / "metrics.json").read_text())
+        metrics = evaluate_bag(rep)
+        metrics["replay"] = old.get("replay", {})
+        pushes.append(
+            {
+                "name": rep.name,
+                "shape": meta.custom_data.get("shape", "?"),
+                "bag": str(bags_dir / rep.name),
+                "steps": int(metrics["observations"]),
+                "contact_source": meta.custom_data.get("contact_source", "?"),
+                "replay": str(rep),
+                "metrics": metrics,
+            }
+        )
+    if not pushes:
+        msg = f"{replays_dir}: no replays to re-evaluate (run without --reuse first)"
+        raise UsageError(msg)
+    return pushes
+
+
 def _replay_one(bag: str, out: str, params: dict[str, Any]) -> dict[str, Any]:
     """Worker: replay one bag; its metrics (evaluate's dict incl. the replay summary)."""
     from dbcslam_ros.replay import ReplayOptions, replay_bag
@@ -219,6 +257,7 @@ def _group_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "yaw_rmse_over_noise",
         "observation_rmse_m",
         "contact_flag_agreement",
+        "contact_flag_agreement_touch",
         "contact_flag_recall",
         "contact_flag_specificity",
         "contact_flag_in_contact_fraction",
@@ -286,9 +325,10 @@ def markdown_table(summary: dict[str, Any]) -> str:
     lines = [
         "| group | pushes | pos RMSE (mm) | pos / noise | yaw RMSE (rad) | yaw / noise "
         "| contact agreement | recall / specificity | flag / est. in contact "
+        "| (diag.) touch readout agreement "
         "| mu pusher: avg final posterior (mean) | mu surface: avg final posterior (mean) "
         "| pose | contact |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, g in groups.items():
         fr = []
@@ -312,6 +352,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
             f"{_fmt(g['contact_flag_specificity'], '.2f')}"
             f" | {_fmt(g['contact_flag_in_contact_fraction'], '.2f')} / "
             f"{_fmt(g['contact_estimated_in_contact_fraction'], '.2f')}"
+            f" | {_fmt(g['contact_flag_agreement_touch'], '.3f')}"
             f" | {fr[0]} | {fr[1]}"
             f" | {'PASS' if g['pass_pose'] else 'FAIL'}"
             f" | {'PASS' if g['pass_contact'] else 'FAIL'} |"
@@ -331,8 +372,12 @@ def _markdown(summary: dict[str, Any]) -> str:
             f"friction candidates pusher {s['pusher_candidates']}, surface "
             f"{s['surface_candidates']}; "
             f"{s['particles']} particles; filter uses /pusher/wrench: "
-            f"{'yes' if s['filter_uses_pusher_wrench'] else 'no'}; wall time "
-            f"{s['wall_s']:.0f} s on {s['jobs']} worker(s).",
+            f"{'yes' if s['filter_uses_pusher_wrench'] else 'no'}; "
+            + (
+                f"re-evaluated the replays in `{s['reused_work']}`."
+                if s.get("reused_work")
+                else f"wall time {s['wall_s']:.0f} s on {s['jobs']} worker(s)."
+            ),
             "",
             "Medians over the pushes of each group. Pose RMSE against the aligned Vicon pose "
             "(`/truth/object/pose`), also divided by the added noise std. Contact agreement: "
@@ -340,7 +385,10 @@ def _markdown(summary: dict[str, Any]) -> str:
             "(F/T force magnitude > 0.25 N; geometric for rect1, whose F/T stream is stale; "
             "`ft_flag` = the pushes with an F/T flag). Recall = agreement on flagged-contact "
             "steps, specificity = on flagged-separated steps. Friction: final posterior "
-            "averaged over the pushes (median of the posterior mean).",
+            "averaged over the pushes (median of the posterior mean). Diagnostic column "
+            "(not the target metric): agreement of the readout 'P(not separated) > 0.5 or "
+            "pusher within 1 mm of the estimated outline', which counts a pusher resting "
+            "against the object at zero model force as contact.",
             "",
             f"Targets: pose RMSE <= {TARGET_RMSE_OVER_NOISE} x added noise (position and yaw); "
             f"contact agreement >= {TARGET_CONTACT_AGREEMENT}.",
@@ -422,6 +470,18 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
             lw=0.8,
             label=f"|F| / {scale:.2f} N",
         )
+    if arr.truth_t.size > 2:
+        tt = (arr.truth_t - t0) / NS
+        speed = np.linalg.norm(np.gradient(arr.truth_pose[:, :2], tt, axis=0), axis=1)
+        vmax = max(float(speed.max()), 1e-9)
+        ax.plot(
+            tt,
+            speed / vmax,
+            color="0.3",
+            lw=0.8,
+            ls=":",
+            label=f"Vicon speed / {1000 * vmax:.0f} mm/s",
+        )
     ax.axhline(0.5, color="0.5", lw=0.5, ls="--")
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("t (s)")
@@ -477,33 +537,40 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         replays_dir = work / "replays"
         bags_dir.mkdir(parents=True, exist_ok=True)
         replays_dir.mkdir(parents=True, exist_ok=True)
-        pushes = _import(files, bags_dir, opts)
-        _say(
-            opts.progress,
-            f"imported {len(pushes)} pushes into {bags_dir} "
-            f"({time.perf_counter() - started:.1f} s); replaying with {opts.particles} "
-            f"particles on {opts.jobs} worker(s)",
-        )
         params: dict[str, Any] = {"particles": opts.particles, "marker_particles": 0}
         params["seed"] = opts.seed
         params.update(dict(opts.params))
-        for p in pushes:
-            p["replay"] = str(replays_dir / p["name"])
-        _replay_all(pushes, params, opts)
+        if opts.reuse:
+            pushes = _reevaluate(bags_dir, replays_dir)
+            _say(opts.progress, f"re-evaluated {len(pushes)} replays in {replays_dir}")
+            used = pushes[0]["metrics"].get("replay", {}).get("params")
+            params = dict(used) if isinstance(used, dict) else params
+        else:
+            pushes = _import(files, bags_dir, opts)
+            _say(
+                opts.progress,
+                f"imported {len(pushes)} pushes into {bags_dir} "
+                f"({time.perf_counter() - started:.1f} s); replaying with {opts.particles} "
+                f"particles on {opts.jobs} worker(s)",
+            )
+            for p in pushes:
+                p["replay"] = str(replays_dir / p["name"])
+            _replay_all(pushes, params, opts)
         uses_wrench = filter_uses_pusher_wrench(params)
         summary: dict[str, Any] = {
             "settings": {
                 "command": command,
                 "data": str(opts.data),
                 "pushes": len(pushes),
-                "particles": opts.particles,
+                "particles": int(params.get("particles", opts.particles)),
                 "jobs": opts.jobs,
+                "reused_work": str(work) if opts.reuse else None,
                 "noise_position": opts.noise_position,
                 "noise_yaw": opts.noise_yaw,
                 "seed": opts.seed,
                 "params": params,
-                "pusher_candidates": list(_import_config(opts).pusher_candidates),
-                "surface_candidates": list(_import_config(opts).surface_candidates),
+                "pusher_candidates": _candidates(pushes, "pusher"),
+                "surface_candidates": _candidates(pushes, "surface"),
                 "filter_uses_pusher_wrench": uses_wrench,
                 "wall_s": 0.0,
             },
@@ -608,6 +675,11 @@ def _parser() -> argparse.ArgumentParser:
         metavar="MU",
         help="object-surface friction candidates (default: the importer's, 0.1 0.2 0.3)",
     )
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="re-evaluate the replays of an earlier run in --work (no import, no replay)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument(
         "-p",
@@ -645,6 +717,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         figures=not args.no_figures,
         progress=sys.stderr,
         params=tuple(extra),
+        reuse=args.reuse,
         pusher_candidates=None
         if args.pusher_candidates is None
         else tuple(args.pusher_candidates),

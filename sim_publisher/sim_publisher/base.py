@@ -141,6 +141,9 @@ class Simulation(ABC):
             cid = client.id
             self._build(cid)
             prev_yaw: float | None = None
+            lag = round(p.observation_delay * p.rate)
+            history: list[FloatArray] = []
+            bias = np.asarray(p.observation_bias, dtype=np.float64)
             for k in range(p.n_samples):
                 if k > 0:
                     for s in range(steps):
@@ -158,7 +161,11 @@ class Simulation(ABC):
                     msg = f"{self.name} simulation diverged at t = {t:.3f} s: pose {pose}"
                     raise BulletError(msg)
                 e = rng.standard_normal(3 + n_joints + 2)
-                obs = pose + e[:3] * np.array([noise.position, noise.position, noise.yaw])
+                history.append(pose.copy())
+                seen = history[max(len(history) - 1 - lag, 0)]
+                if lag:
+                    del history[: max(len(history) - 1 - lag, 0)]
+                obs = seen + bias + e[:3] * np.array([noise.position, noise.position, noise.yaw])
                 if self.point_body:
                     obs[2] = 0.0
                 obs_joints = truth.joints + noise.joint * e[3 : 3 + n_joints]

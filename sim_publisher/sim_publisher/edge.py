@@ -108,7 +108,11 @@ class EdgeSimulation(Simulation):
         if mu != self._mu:
             pb.changeDynamics(self._edge, -1, lateralFriction=mu, physicsClientId=cid)
             self._mu = mu
-        self._chain.apply(cid, self.input_wrench(t)[:2])
+        force = self.input_wrench(t)[:2]
+        if self.params.damping > 0.0:  # hidden viscous damping (not in the recorded wrench)
+            _q, v = self._chain.state(cid)
+            force = force - self.params.damping * v[:2]
+        self._chain.apply(cid, force)
 
     def _measure(self, cid: int, t: float) -> Truth:
         assert self._chain is not None

@@ -101,6 +101,10 @@ class SimParams:
     solver_iterations: pybullet constraint solver iterations per step.
     contact_force_threshold: N, a contact with total normal force above it is "in contact".
     slip_threshold: m/s, |tangential relative velocity| above it is sliding, else sticking.
+    Hidden model effects (never written to the `/scenario`; for `dbcslam discrepancy` tests):
+    observation_delay: s, the observed pose is the true pose this long ago (whole samples);
+    observation_bias: (x m, y m, yaw rad) added to the observed pose; damping: N s/m, viscous
+    force -damping v on the body's translation (edge scenario).
     """
 
     duration: float = 5.0
@@ -112,9 +116,21 @@ class SimParams:
     solver_iterations: int = 100
     contact_force_threshold: float = 1.0e-3
     slip_threshold: float = 1.0e-3
+    observation_delay: float = 0.0
+    observation_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    damping: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("duration", self.duration, 0.0, 3600.0, lo_open=True)
+        _check_range("observation_delay", self.observation_delay, 0.0, 10.0)
+        if len(self.observation_bias) != 3 or not all(
+            math.isfinite(b) for b in self.observation_bias
+        ):
+            raise _fail(
+                f"parameter 'observation_bias' = {self.observation_bias!r} must be 3 finite "
+                "numbers (x m, y m, yaw rad)"
+            )
+        _check_range("damping", self.damping, 0.0, 1.0e3)
         _check_range("rate", self.rate, 0.0, 1000.0, lo_open=True)
         _check_range("physics_dt", self.physics_dt, 1.0e-5, 0.01)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:

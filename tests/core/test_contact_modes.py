@@ -18,6 +18,7 @@ from dbcslam_core.contact_modes import (
     enumerate_hypotheses,
     geometric_feasible,
     solve_reduced,
+    violation_score,
 )
 from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.geometry import contact_kinematics
@@ -346,3 +347,44 @@ def test_impulse_response_is_derivative_of_impulses(mode: Mode) -> None:
     sep = modes == Mode.SEPARATED
     assert np.all(base.impulse_response[:, sep] == 0.0)
     assert np.any(base.impulse_response[0, ~sep] != 0.0)
+
+
+def test_violation_score_rescores_non_sliding_solutions_per_friction() -> None:
+    """Without sliding contacts the reduced system does not depend on mu: one solve plus
+    `violation_score` per mu equals solving each mu (what the filter does per beta)."""
+    model = PlanarModel(GRIPPER)
+    rng = np.random.default_rng(11)
+    env = np.array([-0.03, 0.03])
+    q = np.array([[0.001, 0.0, 0.2], [0.0, 0.004, -0.1]])
+    v = rng.normal(size=(2, 3)) * 0.05
+    sc = GRIPPER
+    kin = contact_kinematics(sc, q, env)
+    vf = v + sc.dt * model.generalized_force(q, v, np.zeros(3)) / model.mass_diag
+    groups = [c.obstacle for c in sc.potential_contacts]
+    modes = np.zeros((2, 6, 6), dtype=np.int64)  # one sticking contact per assignment
+    modes[:, np.arange(6), np.arange(6)] = Mode.STICKING
+    mu = np.array([0.05, 0.4, 0.9])[:, None] * np.ones(6)  # (B, C)
+
+    def solve(m):  # type: ignore[no-untyped-def]
+        return solve_reduced(
+            modes[:, :, None, :],
+            vf[:, None, None],
+            inv_mass=1.0 / model.mass_diag,
+            jn=kin.Jn[:, None, None],
+            jt=kin.Jt[:, None, None],
+            phi=kin.phi[:, None, None],
+            vn_env=kin.vn_env[:, None, None],
+            vt_env=kin.vt_env[:, None, None],
+            mu=m,
+            dt=sc.dt,
+            groups=groups,
+        )
+
+    full = solve(mu)  # (2, 6, 3)
+    one = solve(mu[:1])  # (2, 6, 1)
+    np.testing.assert_allclose(full.v_next, np.broadcast_to(one.v_next, full.v_next.shape))
+    score = violation_score(
+        modes[:, :, None, :], one.ln, one.lt, one.gap_rate, one.vt, mu=mu, nv=3, groups=groups
+    )
+    np.testing.assert_allclose(score, full.score, rtol=1e-9, atol=1e-12)
+    assert np.ptp(full.score, axis=-1).max() > 0.0  # the cone check does depend on mu

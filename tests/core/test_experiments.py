@@ -14,10 +14,16 @@ from dbcslam_core.experiments import (
     ExperimentConfig,
     RunRecord,
     RunTrace,
+    edge_targets,
     evaluate_targets,
+    experiment_tasks,
     make_trajectory,
+    representative_seed,
+    rmse_target,
     run_black_box,
     run_experiments,
+    run_parallel,
+    run_task,
     score,
     summarize,
 )
@@ -170,3 +176,84 @@ def test_run_black_box_record() -> None:
     m = score(trace)
     assert m["live_hypotheses"] == 1.0
     assert m["position_rmse"] < tr.scenario.noise.position
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def _fail(x: int) -> int:
+    msg = f"job {x} failed"
+    raise ValueError(msg)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_run_parallel_results_in_job_order(workers: int) -> None:
+    from functools import partial
+
+    seen: list[int] = []
+    jobs = [(k, partial(_square, k)) for k in (3, 1, 2)]
+    out = run_parallel(jobs, workers=workers, on_done=lambda k, r: seen.append(k))
+    assert list(out) == [3, 1, 2]
+    assert out == {3: 9, 1: 1, 2: 4}
+    assert sorted(seen) == [1, 2, 3]
+
+
+def test_run_parallel_errors() -> None:
+    from functools import partial
+
+    with pytest.raises(ModelError, match="workers"):
+        run_parallel([], workers=0)
+    with pytest.raises(ValueError, match="job 5 failed"):
+        run_parallel([(5, partial(_fail, 5))], workers=1)
+
+
+def test_parallel_experiments_match_serial() -> None:
+    cfg = ExperimentConfig(seeds=(0,), particles=6, n_steps=10, scenarios=("edge",))
+    serial = run_experiments(cfg)
+    parallel = run_experiments(replace(cfg, workers=2))
+    assert [r.method for r in parallel.records] == ["dbcslam", "fixed_mu_0.3", "fixed_mu_0.9"]
+    for a, b in zip(serial.records, parallel.records, strict=True):
+        assert (a.scenario, a.seed, a.method) == (b.scenario, b.seed, b.method)
+        assert a.metrics["position_rmse"] == b.metrics["position_rmse"]
+
+
+def test_tasks_and_run_task() -> None:
+    cfg = ExperimentConfig(seeds=(0, 1), scenarios=("gripper", "edge"))
+    tasks = experiment_tasks(cfg)
+    assert tasks[:2] == [("gripper", 0, "dbcslam"), ("gripper", 1, "dbcslam")]
+    assert ("edge", 1, "fixed:1") in tasks and len(tasks) == 2 + 2 * 3
+    assert len(experiment_tasks(replace(cfg, fixed_friction=False))) == 4
+    rec, trace, wall = run_task("edge", 0, "fixed:0", particles=5, n_steps=8)
+    assert rec.method == trace.method == "fixed_mu_0.3"
+    assert trace.est_q.shape == (7, 2) and wall > 0
+    with pytest.raises(ModelError, match="unknown method"):
+        run_task("edge", 0, "fixed:x", particles=5, n_steps=8)
+
+
+def test_target_builders() -> None:
+    t = rmse_target("push", "yaw", 0.6, subject="object ")
+    assert (t.label, t.metric, t.op, t.threshold) == (
+        "object yaw RMSE <= 0.6 x noise std",
+        "yaw_rmse_ratio",
+        "<=",
+        0.6,
+    )
+    with pytest.raises(ModelError, match="position"):
+        rmse_target("edge", "speed", 1.0)
+    edge = edge_targets(0.6)
+    assert edge[0].threshold == 0.6 and edge[0].metric == "position_rmse_ratio"
+    assert edge[1:] == TARGETS[1:5]
+    assert TARGETS[0] == rmse_target("edge", "position", 0.5)
+
+
+def test_representative_seed_lower_median() -> None:
+    recs = [
+        RunRecord("edge", s, "dbcslam", 1, {"position_rmse": v})
+        for s, v in ((0, 3.0), (1, 1.0), (2, 2.0), (3, 4.0))
+    ]
+    recs.append(RunRecord("edge", 9, "fixed_mu_0.3", 1, {"position_rmse": 2.5}))
+    assert representative_seed(recs, "edge") == 2
+    assert representative_seed(recs, "edge", method="fixed_mu_0.3") == 9
+    with pytest.raises(ModelError, match="gripper"):
+        representative_seed(recs, "gripper")

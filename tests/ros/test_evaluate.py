@@ -127,3 +127,28 @@ def test_match_stamps_nearest_within_tolerance() -> None:
     assert j.tolist() == [1, 2, 3]
     i, j = match_stamps(a, np.zeros(0, dtype=np.int64), tol_ns=2)
     assert i.size == j.size == 0
+
+
+def test_contact_flag_metrics_count_agreement_per_matched_step() -> None:
+    from dbcslam_ros.evaluate import BagArrays, contact_flag_metrics
+
+    # P(separated) per step: 0.9 (sep), 0.2 (contact), 0.4 (contact), 0.7 (sep), 0.1 (contact)
+    p_sep = np.array([0.9, 0.2, 0.4, 0.7, 0.1])
+    modes = np.zeros((5, 1, 4))
+    modes[:, 0, 0] = p_sep
+    modes[:, 0, 1] = 1.0 - p_sep
+    arr = BagArrays(path=Path("x"))
+    arr.est_t = np.arange(5, dtype=np.int64) * 10
+    arr.modes = modes
+    # flags at the same stamps except the last estimate (no flag within tolerance)
+    arr.flag_t = np.array([0, 10, 20, 30, 100], dtype=np.int64)
+    arr.flag = np.array([[False], [True], [False], [True], [True]])
+    out = contact_flag_metrics(arr, tol_ns=2)
+    # matched steps 0-3: est [sep, c, c, sep] vs flag [sep, c, sep, c] -> 2 of 4 agree
+    assert out["contact_flag_entries"] == 4
+    assert out["contact_flag_agreement"] == pytest.approx(0.5)
+    assert out["contact_flag_recall"] == pytest.approx(0.5)  # flagged contact: steps 1, 3
+    assert out["contact_flag_specificity"] == pytest.approx(0.5)  # flagged sep: steps 0, 2
+    assert out["contact_flag_in_contact_fraction"] == pytest.approx(0.5)
+    arr.flag = np.zeros((5, 2), dtype=bool)
+    assert "contact_flag_error" in contact_flag_metrics(arr, tol_ns=2)

@@ -88,6 +88,21 @@ def test_metrics_are_in_range(result: tuple[dict[str, Any], Path, str]) -> None:
     assert isinstance(overall["pass_pose"], bool) and isinstance(overall["pass_contact"], bool)
 
 
+def test_reuse_reevaluates_the_same_replays(
+    result: tuple[dict[str, Any], Path, str], tmp_path: Path
+) -> None:
+    summary, out, _ = result
+    again = run_eval(
+        EvalOptions(data=DATA, out=tmp_path, work=out / "work", reuse=True, figures=False)
+    )
+    assert again["groups"] == summary["groups"]
+    assert again["settings"]["particles"] == 16
+    assert again["settings"]["filter_uses_pusher_wrench"] is False
+    assert "re-evaluated" in (tmp_path / "mitpush.md").read_text()
+    for push in summary["pushes"]:
+        assert 0.0 <= push["metrics"]["contact_flag_agreement_touch"] <= 1.0
+
+
 def test_summary_medians_and_pass_flags() -> None:
     def push(shape: str, pos: float, agree: float) -> dict[str, Any]:
         metrics = {

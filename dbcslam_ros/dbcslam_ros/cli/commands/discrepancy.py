@@ -38,6 +38,17 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--effects", nargs="+", default=None, help="candidate effects (default: per scenario)"
     )
+    parser.add_argument(
+        "--max-starts", type=int, default=None, help="rollout starts per bag (default 150)"
+    )
+    parser.add_argument("--stride", type=int, default=None, help="steps between starts (2)")
+    parser.add_argument(
+        "--filter",
+        type=int,
+        default=0,
+        metavar="PARTICLES",
+        help="also replay the held-out bags with the filter, nominal vs extended (0 = off)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
 
 
@@ -46,17 +57,26 @@ def _run(args: argparse.Namespace) -> int:
     from dbcslam_ros.discrepancy_report import config_with, run_discrepancy
     from dbcslam_ros.errors import UsageError
 
-    if args.horizon is not None and args.horizon < 1:
-        msg = f"--horizon must be >= 1, got {args.horizon}"
-        raise UsageError(msg)
+    for name in ("horizon", "max_starts", "stride"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            msg = f"--{name.replace('_', '-')} must be >= 1, got {value}"
+            raise UsageError(msg)
     cfg = config_with(
         DiscrepancyConfig(),
         horizon=args.horizon,
+        max_starts=args.max_starts,
+        stride=args.stride,
         effects=tuple(args.effects) if args.effects else None,
     )
     t0 = time.monotonic()
     result, data = run_discrepancy(
-        args.bags, args.heldout, args.json, config=cfg, plots=not args.no_plots
+        args.bags,
+        args.heldout,
+        args.json,
+        config=cfg,
+        plots=not args.no_plots,
+        filter_particles=args.filter,
     )
     print(f"verdict: {result.verdict}")
     print(data["evidence"])
