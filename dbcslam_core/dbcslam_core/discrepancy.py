@@ -776,6 +776,24 @@ class _Fitter:
         return float(np.mean((s >= params["x_min"]) & (s <= params["x_max"])))
 
     def _fit_patch(self) -> tuple[dict[str, float], dict[str, float]]:
+        """Best patch of two localisations (contact position at the rollouts' first step,
+        or half way along them), compared on exact rollouts."""
+        best: tuple[dict[str, float], dict[str, float]] | None = None
+        best_ll = -np.inf
+        patch_s = self.patch_s
+        for where in (0, self.cfg.horizon // 2):
+            params, se = self._fit_patch_at(where)
+            vals = np.asarray([[params["x_min"], params["x_max"], params["mu"]]])
+            ll = float(
+                _train_ll(self.pred, self.pred.rollout(_mods_for("friction_patch", vals)))[0]
+            )
+            if ll > best_ll:
+                best, best_ll, patch_s = (params, se), ll, self.patch_s
+        assert best is not None
+        self.patch_s = patch_s
+        return best
+
+    def _fit_patch_at(self, where: int) -> tuple[dict[str, float], dict[str, float]]:
         pred = self.pred
         mu_nom = float(pred.data[0].mu_nom[pred.data[0].run.scenario.contact_pairs[0]])
         mus = np.asarray(
@@ -795,7 +813,7 @@ class _Fitter:
             tab0.append(np.sum(np.nan_to_num(r0[0, m] ** 2 / var), axis=(1, 2)))
             env = d.run.env[d.starts[m]]
             # patch coordinate: s of the closest contact at the first observed step
-            mid = d.target[m][:, 0]
+            mid = d.target[m][:, where]
             qm = np.where(np.isfinite(mid), mid, d.q0[m])
             kin = contact_kinematics(d.run.scenario, qm, env)
             cidx = np.argmin(kin.phi, axis=-1)
@@ -1020,8 +1038,8 @@ def effect_size(  # noqa: PLR0911
     """Size of a fitted effect relative to the smallest that matters (>= 1: large enough).
 
     factors: |log f| / log 1.15; viscous_damping: fraction of velocity lost over the horizon
-    (b H dt / m) / 0.05; sensor_delay: seconds / (dt / 2); sensor_bias: position over twice
-    the position noise (yaw over twice the yaw noise); friction_patch: |mu / mu_nom - 1| /
+    (b H dt / m) / 0.05; sensor_delay: seconds / (dt / 2); sensor_bias: position over the
+    position noise std (yaw over the yaw noise std); friction_patch: |mu / mu_nom - 1| /
     0.2; support_friction: mu / 0.02; support_pressure: rim_fraction / 0.1.
     """
     dt = float(scenario.dt)
@@ -1034,7 +1052,7 @@ def effect_size(  # noqa: PLR0911
     if effect == "sensor_bias":
         pn = max(float(scenario.noise.position), 1e-6)
         yn = max(float(scenario.noise.yaw), 1e-6)
-        return max(math.hypot(params["x"], params["y"]) / (2 * pn), abs(params["yaw"]) / (2 * yn))
+        return max(math.hypot(params["x"], params["y"]) / pn, abs(params["yaw"]) / yn)
     if effect == "friction_patch":
         mu_nom = float(nominal_friction(scenario)[scenario.contact_pairs[0]])
         return abs(params["mu"] / max(mu_nom, 1e-9) - 1.0) / 0.2

@@ -11,8 +11,13 @@ position std = observation noise) with the joint positions of step 0; filter ste
 gets observation k, the wrench u[k-1] (acting over [t_{k-1}, t_k)) and the joints at t_k, and
 its estimate is compared with the truth at t_k. Step 0 is not scored.
 
-Targets (issue 3) are in :data:`TARGETS`; :func:`evaluate_targets` checks the medians over
-seeds produced by :func:`summarize`.
+Targets (issue 3) are in :data:`TARGETS` (built with :func:`edge_targets` and
+:func:`rmse_target`, which other target sets reuse); :func:`evaluate_targets` checks the
+medians over seeds produced by :func:`summarize`. :func:`run_experiments` runs the
+(scenario, seed, method) tasks of :func:`experiment_tasks` through :func:`run_task` on
+``ExperimentConfig.workers`` processes with :func:`run_parallel` (generic: any picklable
+zero-argument jobs); every run draws from its own seeded generators, so the results do not
+depend on the number of workers (the step times do).
 """
 
 from __future__ import annotations

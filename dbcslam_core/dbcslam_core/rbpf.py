@@ -106,6 +106,11 @@ class FilterConfig:
       map_lag: fixed lag (steps) of the smoothed friction committed to the map.
     * joint_accel_std: m/s^2, white-acceleration std of the Kalman smoother of joint
       readings.
+    * gap_closure: fraction of a positive gap that an in-contact hypothesis closes within
+      one step (1 = the time-stepping model: the whole gap, as a velocity jump phi / dt).
+      Below 1 a particle whose estimate hovers a little off an obstacle (tilt / position
+      error of the estimate) can take the contact hypothesis without a velocity spike that
+      its proposal would reject; the gap then closes over a few steps.
     * joint_maneuver_accel_std: m/s^2, optional agile companion of the joint smoother that
       takes over at starts / stops (`JointSmoother`); allows a small joint_accel_std.
     * smoothed_joint_velocity: obstacle velocities from the joint smoother's velocity
@@ -144,6 +149,7 @@ class FilterConfig:
     force_noise: float = 0.2
     smoothed_joint_velocity: bool = True
     joint_maneuver_accel_std: float | None = None
+    gap_closure: float = 1.0
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -177,6 +183,9 @@ class FilterConfig:
         if not (math.isfinite(self.force_noise) and self.force_noise > 0.0):
             msg = f"force_noise must be > 0 N, got {self.force_noise}"
             raise ModelError(msg)
+        if not 0.0 < self.gap_closure <= 1.0:
+            msg = f"gap_closure must be in (0, 1], got {self.gap_closure}"
+            raise ModelError(msg)
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
             raise ModelError(msg)
@@ -208,6 +217,9 @@ class FilterConfig:
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
             }
+            if kind == "gripper":
+                # light edge contacts: let hovering particles take the contact hypothesis
+                base["gap_closure"] = 0.05
             if kind == "push":
                 # constant-speed pusher: a stiff joint smoother (the pusher's position and
                 # velocity enter sticking impulses and the predicted pusher force at 1/dt)
@@ -722,13 +734,17 @@ class DbcSlamFilter:
         bottleneck.)
         """
         vf = v_free if v_free.ndim == 3 else v_free[:, None, :]
+        phi = kin.phi[pi]
+        closure = self.config.gap_closure
+        if closure < 1.0:  # in-contact hypotheses close a positive gap only partly per step
+            phi = np.where((modes != Mode.SEPARATED) & (phi > 0.0), closure * phi, phi)
         return solve_reduced(
             modes[:, None, :],
             vf,
             inv_mass=self._inv_mass,
             jn=kin.Jn[pi][:, None],
             jt=kin.Jt[pi][:, None],
-            phi=kin.phi[pi][:, None],
+            phi=phi[:, None],
             vn_env=kin.vn_env[pi][:, None],
             vt_env=kin.vt_env[pi][:, None],
             mu=self._mu[None],

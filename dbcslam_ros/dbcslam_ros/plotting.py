@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from dbcslam_core.experiments import RunTrace
 
 __all__ = [
+    "Panel",
     "plot_contact_probability",
     "plot_friction_map",
     "plot_friction_posterior",
@@ -36,9 +37,11 @@ __all__ = [
     "plot_trajectory_xy",
     "plot_value_vs_time",
     "save_edge_figures",
+    "save_figure",
     "save_gripper_figures",
     "save_run_figures",
     "shade_mask",
+    "write_panels",
 ]
 
 TRUTH_STYLE: dict[str, Any] = {"color": "tab:blue", "ls": "--", "lw": 1.4, "label": "truth"}
@@ -164,24 +167,27 @@ def _prob_axes(ax: Axes, title: str, ylabel: str) -> None:
     ax.grid(True, alpha=0.3)
 
 
+def _plot_probability(
+    ax: Axes, t: ArrayLike, p: ArrayLike, truth: ArrayLike, *, what: str, title: str
+) -> None:
+    tv = np.asarray(t, dtype=float)
+    shade_mask(ax, tv, truth, f"true {what}")
+    ax.plot(tv, np.asarray(p, dtype=float), **{**EST_STYLE, "label": f"P({what})"})
+    _prob_axes(ax, title or f"Probability of {what}", f"P({what}) [-]")
+
+
 def plot_contact_probability(
     ax: Axes, t: ArrayLike, p_contact: ArrayLike, true_contact: ArrayLike, *, title: str = ""
 ) -> None:
     """P(in contact) over time with the truly-in-contact periods shaded."""
-    tv = np.asarray(t, dtype=float)
-    shade_mask(ax, tv, true_contact, "true contact")
-    ax.plot(tv, np.asarray(p_contact, dtype=float), **{**EST_STYLE, "label": "P(contact)"})
-    _prob_axes(ax, title or "Probability of contact", "P(contact) [-]")
+    _plot_probability(ax, t, p_contact, true_contact, what="contact", title=title)
 
 
 def plot_stick_probability(
     ax: Axes, t: ArrayLike, p_stick: ArrayLike, true_stick: ArrayLike, *, title: str = ""
 ) -> None:
     """P(sticking) over time with the truly-sticking periods shaded."""
-    tv = np.asarray(t, dtype=float)
-    shade_mask(ax, tv, true_stick, "true sticking")
-    ax.plot(tv, np.asarray(p_stick, dtype=float), **{**EST_STYLE, "label": "P(sticking)"})
-    _prob_axes(ax, title or "Probability of sticking", "P(sticking) [-]")
+    _plot_probability(ax, t, p_stick, true_stick, what="sticking", title=title)
 
 
 def plot_friction_posterior(
@@ -303,7 +309,7 @@ def plot_live_hypotheses(
     ax.grid(True, alpha=0.3, which="both")
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     """Write `fig` as a PNG at ``DPI`` with a 256-colour palette (about a third of the RGBA
     size; the plots use few colours, so nothing visible is lost)."""
     from PIL import Image
@@ -451,6 +457,43 @@ def _gripper_hypotheses(ax: Axes, tr: RunTrace) -> None:
 
 
 _Panel = Callable[["Axes", "RunTrace"], None]
+Panel = Callable[["Axes"], None]
+"""A panel: draws on one matplotlib Axes."""
+
+
+def write_panels(
+    out_dir: Path | str,
+    singles: Sequence[tuple[str, tuple[float, float], Sequence[Panel]]],
+    overview: tuple[str, int, int, Sequence[Panel]] | None = None,
+) -> list[Path]:
+    """Write one PNG per `singles` entry (file name, (width, height) in inches, panels drawn
+    side by side) and, if given, an overview (file name, rows, cols, panels; unused axes
+    hidden, 5.2 x 3.6 in per panel) into `out_dir` via :func:`save_figure`; returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    for name, size, panels in singles:
+        fig, axs = plt.subplots(1, len(panels), figsize=size, squeeze=False)
+        for ax, draw in zip(axs[0], panels, strict=True):
+            draw(ax)
+        paths.append(save_figure(fig, out / name))
+    if overview is not None:
+        name, rows, cols, panels = overview
+        fig, axs = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.6 * rows), squeeze=False)
+        flat = list(axs.ravel())
+        for ax, draw in zip(flat, panels, strict=False):
+            draw(ax)
+        for ax in flat[len(panels) :]:
+            ax.set_axis_off()
+        paths.append(save_figure(fig, out / name))
+    return paths
+
+
+def _bound(draw: _Panel, tr: RunTrace) -> Panel:
+    def panel(ax: Axes) -> None:
+        draw(ax, tr)
+
+    return panel
 
 
 def _write_panels(
@@ -459,22 +502,13 @@ def _write_panels(
     singles: Sequence[tuple[str, tuple[float, float], Sequence[_Panel]]],
     overview: tuple[str, int, int, Sequence[_Panel]],
 ) -> list[Path]:
-    out.mkdir(parents=True, exist_ok=True)
-    paths: list[Path] = []
-    for name, size, panels in singles:
-        fig, axs = plt.subplots(1, len(panels), figsize=size, squeeze=False)
-        for ax, draw in zip(axs[0], panels, strict=True):
-            draw(ax, tr)
-        paths.append(_save(fig, out / name))
+    def bind(panels: Sequence[_Panel]) -> list[Panel]:
+        return [_bound(draw, tr) for draw in panels]
+
     name, rows, cols, panels = overview
-    fig, axs = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.6 * rows), squeeze=False)
-    flat = list(axs.ravel())
-    for ax, draw in zip(flat, panels, strict=False):
-        draw(ax, tr)
-    for ax in flat[len(panels) :]:
-        ax.set_axis_off()
-    paths.append(_save(fig, out / name))
-    return paths
+    return write_panels(
+        out, [(n, size, bind(p)) for n, size, p in singles], (name, rows, cols, bind(panels))
+    )
 
 
 def save_edge_figures(trace: RunTrace, out_dir: Path | str, prefix: str = "edge") -> list[Path]:

@@ -241,3 +241,32 @@ def test_force_observation_validation(edge_traj: Trajectory) -> None:
     # naming the edge obstacle works (a contact force reading on the edge)
     est = f.step(obs, inp, force=ForceObservation(0.0, 0.0, obstacle="edge"))
     assert est.step == 1
+
+
+def test_gap_closure_softens_the_contact_velocity_jump(gripper_traj: Trajectory) -> None:
+    """An in-contact hypothesis of a particle hovering off a jaw closes only gap_closure of the
+    gap per step (no phi / dt velocity spike that the proposal would reject)."""
+    from dbcslam_core.geometry import contact_kinematics
+
+    sc = gripper_traj.scenario
+    with pytest.raises(ModelError, match="gap_closure"):
+        FilterConfig(gap_closure=0.0)
+    env = np.asarray(gripper_traj.env[0])
+    q = np.array([[0.0, 0.0, 0.0]])
+    kin0 = contact_kinematics(sc, q, env)
+    c = 0  # lift the body so that contact 0 hovers 0.3 mm off its jaw
+    q[0, :2] += kin0.normal[0, c] * (0.3e-3 - kin0.phi[0, c])
+    kin = contact_kinematics(sc, q, env, np.zeros_like(env))
+    assert kin.phi[0, c] == pytest.approx(0.3e-3)
+    modes = np.zeros((1, sc.n_contacts), dtype=np.int64)
+    modes[0, c] = Mode.STICKING
+    jumps = []
+    for closure in (1.0, 0.05):
+        f = DbcSlamFilter(sc, FilterConfig.preset("gripper", particles=1, gap_closure=closure))
+        sol = f._solve_entries(
+            modes, np.zeros((1, 3)), kin, np.array([0]), None, sensitivity=False
+        )
+        gap_rate_v = kin.Jn[0, c] @ sol.v_next[0, 0]  # normal velocity towards the jaw
+        jumps.append(-gap_rate_v)
+    assert jumps[0] == pytest.approx(0.3e-3 / sc.dt, rel=1e-6)
+    assert jumps[1] == pytest.approx(0.05 * 0.3e-3 / sc.dt, rel=1e-6)

@@ -34,7 +34,7 @@ def test_table_files_parse(out_dir: Path) -> None:
     data = json.loads((out_dir / "experiments_sim.json").read_text())
     assert data["config"]["particles"] == 8
     assert data["config"]["duration"] == 0.5
-    assert {r["scenario"] for r in data["runs"]} == {"edge", "gripper", "push"}
+    assert {r["scenario"] for r in data["runs"]} == {"edge", "gripper", "push", "push_offcentre"}
     methods = {(r["scenario"], r["method"]) for r in data["runs"]}
     assert ("edge", "fixed_mu_0.3") in methods
     assert ("edge", "fixed_mu_0.9") in methods
@@ -46,7 +46,8 @@ def test_table_files_parse(out_dir: Path) -> None:
         rmse = r["metrics"]["position_rmse"]
         assert rmse is not None and 0.0 < rmse < 1.0
     md = (out_dir / "experiments_sim.md").read_text()
-    rows = [ln for ln in md.splitlines() if ln.startswith(("| edge |", "| gripper |", "| push |"))]
+    heads = ("| edge |", "| gripper |", "| push |", "| push_offcentre |")
+    rows = [ln for ln in md.splitlines() if ln.startswith(heads)]
     target_rows = rows[: len(data["targets"])]
     assert len(target_rows) == len(data["targets"])
     for row in target_rows:
@@ -55,13 +56,15 @@ def test_table_files_parse(out_dir: Path) -> None:
 
 
 def test_figures_written(out_dir: Path) -> None:
-    for name in ("sim_edge_overview.png", "sim_gripper_overview.png", "sim_push_overview.png"):
+    for scen in ("edge", "gripper", "push", "push_offcentre"):
+        name = f"sim_{scen}_overview.png"
         assert (out_dir / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_bad_arguments_exit_2(tmp_path: Path) -> None:
     assert main(["--out", str(tmp_path), "--scenarios", "nope", "--quiet"]) == 2
     assert main(["--out", str(tmp_path), "--particles", "0", "--quiet"]) == 2
+    assert main(["--out", str(tmp_path), "--push-support-pair", "pusher", "--quiet"]) == 2
 
 
 def test_segment_truth_marks_seam_cells_impure() -> None:

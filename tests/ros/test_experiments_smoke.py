@@ -76,3 +76,73 @@ def test_bench_smoke(tmp_path: Path) -> None:
     assert rows[1]["blackbox_lemke_ms"] is None  # above --lemke-max: not run
     assert all(r["dbcslam_ms"] > 0 for r in rows)
     assert "| edge | 4 |" in (tmp_path / "bench.md").read_text()
+
+
+def test_shared_report_helpers(tmp_path: Path) -> None:
+    import math
+
+    import numpy as np
+
+    from dbcslam_core.experiments import RunRecord, Target, TargetCheck
+    from dbcslam_ros.experiments import (
+        fmt_value,
+        json_safe,
+        parse_scenarios,
+        report_payload,
+        report_sections,
+        verdict,
+        write_json,
+    )
+
+    assert [fmt_value(x) for x in (math.nan, 1234.5, 0.5, 2e-5)] == [
+        "n/a",
+        "1234",
+        "0.500",
+        "2e-05",
+    ]
+    checks = [
+        TargetCheck(Target("edge", "pos", "position_rmse_ratio", "<=", 0.5), 0.3, True),
+        TargetCheck(Target("edge", "hyp", "live_hypotheses", "report", math.nan), 4.0, None),
+    ]
+    assert [verdict(c) for c in checks] == ["PASS", "report"]
+    recs = [
+        RunRecord(
+            "edge", s, "dbcslam", 9, {"position_rmse": 0.002 * (s + 1), "obs_position_rmse": 0.01}
+        )
+        for s in range(3)
+    ]
+    lines = report_sections(recs, checks)
+    assert "| edge | pos | 0.300 | <= 0.500 | PASS |" in lines
+    assert "| edge | hyp | 4.000 | - | report |" in lines
+    assert "| method | pos RMSE [mm] | obs RMSE [mm] |" in lines
+    assert "| dbcslam | 4.000 | 10.000 |" in lines  # medians over seeds
+    assert "| edge | 2 | dbcslam | 6.000 |  |" in lines
+    assert parse_scenarios(" gripper,edge ", ("edge", "gripper")) == ("gripper", "edge")
+    for bad in ("", "edge,push"):
+        with pytest.raises(ValueError, match="valid"):
+            parse_scenarios(bad, ("edge", "gripper"))
+    payload = report_payload("cmd", 1.5, {"seeds": (0, 1)}, checks, recs)
+    assert payload["summary"]["edge"]["dbcslam"]["n_seeds"] == 3.0
+    assert json_safe({1: (np.float64(2.0), math.inf)}) == {"1": [2.0, None]}
+    data = json.loads(write_json(tmp_path / "r.json", payload).read_text())
+    assert data["config"] == {"seeds": [0, 1]} and data["date_utc"].endswith("UTC")
+    assert data["targets"][1]["passed"] is None
+
+
+def test_figure_trace_attaches_better_fixed_baseline() -> None:
+    from dataclasses import replace
+
+    from dbcslam_core.experiments import run_task
+    from dbcslam_ros.experiments import figure_trace
+
+    traces = {}
+    for method in ("dbcslam", "fixed:0", "fixed:1"):
+        rec, tr, _ = run_task("edge", 0, method, particles=5, n_steps=8)
+        traces[("edge", 0, rec.method)] = tr
+    far = traces[("edge", 0, "fixed_mu_0.9")]
+    traces[("edge", 0, "fixed_mu_0.9")] = replace(far, est_q=far.est_q + 1.0)
+    out = figure_trace(traces, "edge", 0)
+    assert out.baseline_q is not None
+    np_est = traces[("edge", 0, "fixed_mu_0.3")].est_q
+    assert (out.baseline_q == np_est).all()
+    assert "0.3" in out.baseline_label
