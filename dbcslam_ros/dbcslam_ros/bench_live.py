@@ -18,6 +18,7 @@ and stops both processes by PID (also on failure or Ctrl-C). Reported per scenar
   steps coasted over in catch-up;
 * mean position error |estimate - truth| next to the noise |observation - truth| over the same
   stamps (mm), and their ratio;
+* (JSON only) the filter's model steps and how many of them had a pusher force reading;
 * with ``--offline`` (or only that, ``--no-live``): CPU time per model step
   (``time.process_time``: another process's load inflates it much less than wall time) of
   the same filter configuration on the same simulated run, fed through
@@ -97,6 +98,8 @@ class LiveResult:
     noise_mm: float
     keeps_up: bool | None
     offline: OfflineResult | None = None
+    filter_steps: int = 0
+    force_steps: int = 0
 
     @property
     def error_over_noise(self) -> float:
@@ -253,6 +256,8 @@ def run_live(
         latency_ms_max=_float(d, "latency_ms_max"),
         position_error_mm=round(1e3 * float(np.mean(err)), 3) if err else math.nan,
         noise_mm=round(1e3 * float(np.mean(noise)), 3) if noise else math.nan,
+        filter_steps=int(d.get("filter_steps", "0")),
+        force_steps=int(d.get("force_steps", "0")),
         keeps_up=bool(
             received > 0
             and dropped <= KEEP_UP_DROP_FRACTION * received

@@ -365,7 +365,7 @@ def _figures(result: Analysis, stem: Path) -> list[Path]:
     ax.set_ylabel("|residual| at horizon (mm)")
     ax.set_title("vs velocity")
     ax = axes[1, 1]
-    ax.plot(p.q0[:, 0], pos[:, -1] * 1e3, ".", ms=3, label="contact" if True else "")
+    ax.plot(p.q0[p.in_contact, 0], pos[p.in_contact, -1] * 1e3, ".", ms=3, label="contact")
     ax.plot(p.q0[~p.in_contact, 0], pos[~p.in_contact, -1] * 1e3, "x", ms=3, label="free")
     ax.set_xlabel("x at start (m)")
     ax.set_ylabel("|residual| at horizon (mm)")

@@ -6,7 +6,8 @@
 
 * ``trajectory.png``: estimate vs truth vs observations (edge: x over time with the truly
   sticking spans shaded, and the x-y path along the edge; gripper/push: x-y path and yaw);
-* ``contacts.png``: per contact, P(contact) with true contact shaded and P(sticking) with
+* ``contacts.png``: per contact, P(contact) with true contact shaded (without
+  ``/truth/contact_modes``: the measured ``/pusher/contact`` flag, if any) and P(sticking) with
   true sticking shaded (paper Figs. 3c-d, 4);
 * ``modes.png``: per contact, the four mode probabilities stacked over time above a strip
   with the true mode (bag-specific: shows every mode, not only contact/stick);
@@ -152,6 +153,7 @@ def save_bag_figures(arrays: BagArrays, out_dir: str | Path) -> list[Path]:
         names = list(sc.contacts)
         n_c = arr.modes.shape[1]
         probs = arr.modes[i_est] if has_truth else arr.modes
+        flag_at = _flag_at(arr, arr.est_t[rows], sc.dt)
         fig, axes2 = plt.subplots(n_c, 2, figsize=(12, 1.9 * n_c + 0.6), squeeze=False)
         for c in range(n_c):
             name = names[c] if c < len(names) else f"contact {c}"
@@ -162,8 +164,11 @@ def save_bag_figures(arrays: BagArrays, out_dir: str | Path) -> list[Path]:
                 axes2[c, 0],
                 t,
                 pc,
-                (true_c != 0) if true_c is not None else np.zeros(t.shape, dtype=bool),
-                title=f"P(contact): {name}",
+                (true_c != 0)
+                if true_c is not None
+                else (flag_at[:, c] if flag_at is not None else np.zeros(t.shape, dtype=bool)),
+                title=f"P(contact): {name}"
+                + (" (shaded: measured flag)" if true_c is None and flag_at is not None else ""),
             )
             pl.plot_stick_probability(
                 axes2[c, 1],
@@ -243,3 +248,14 @@ def save_bag_figures(arrays: BagArrays, out_dir: str | Path) -> list[Path]:
         ax.grid(True, alpha=0.3)
         save(fig, "filter_health.png")
     return paths
+
+
+def _flag_at(arr: BagArrays, stamps: np.ndarray, dt: float) -> np.ndarray | None:
+    """The measured contact flag (``/pusher/contact``) at each stamp (False where none is
+    within dt/2); None without a flag or when its contacts differ from the estimate's."""
+    if arr.flag is None or arr.modes is None or arr.flag.shape[1] != arr.modes.shape[1]:
+        return None
+    i, j = match_stamps(np.asarray(stamps, dtype=np.int64), arr.flag_t, int(0.5 * dt * NS))
+    out = np.zeros((len(stamps), arr.flag.shape[1]), dtype=bool)
+    out[i] = arr.flag[j]
+    return out

@@ -38,6 +38,7 @@ def test_live_run_is_measured(live_edge: bl.LiveResult) -> None:
     assert 0 < r.latency_ms_mean <= r.latency_ms_max
     assert r.noise_mm > 0 and math.isfinite(r.position_error_mm)
     assert r.keeps_up is not None
+    assert r.filter_steps >= r.poses_used and r.force_steps == 0  # edge: no pusher
 
 
 def test_offline_cpu_and_outputs(tmp_path: Path) -> None:
