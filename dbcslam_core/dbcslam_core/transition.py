@@ -104,6 +104,7 @@ def edge_consistency(
     phi: npt.ArrayLike,
     gap_rate_free: npt.ArrayLike,
     dt: float,
+    *,
     partner_contact: npt.ArrayLike,
     params: TransitionParams,
 ) -> FloatArray:

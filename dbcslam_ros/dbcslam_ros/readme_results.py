@@ -65,6 +65,13 @@ _SCENARIO_NAMES: dict[str, str] = {
 
 # (scenario or "" for any, figure kind) -> what the figure shows
 _CAPTIONS: dict[tuple[str, str], str] = {
+    ("edge", "overview"): "x-y path, x over time, friction map along the edge, P(contact), "
+    "P(sticking | contact) and friction posterior over time, truth shaded; representative seed "
+    "(median DBC-SLAM position RMSE)",
+    ("gripper", "overview"): "centre-of-mass path, yaw, jaw friction posterior and live "
+    "contact-mode hypotheses per particle; representative seed (median DBC-SLAM position RMSE)",
+    ("push", "overview"): "object path, yaw, pusher friction posterior, P(pusher contact) and "
+    "P(sticking | contact), truth shaded; representative seed (median DBC-SLAM position RMSE)",
     ("", "overview"): "all panels of the representative seed (median DBC-SLAM position RMSE)",
     ("edge", "trajectory"): "x-y path of the point mass: truth, observations, DBC-SLAM and "
     "the better fixed-friction baseline; rough (high-friction) region shaded",

@@ -194,14 +194,15 @@ def _push_force(traj: Trajectory, noise: float, rng: np.random.Generator) -> np.
     return f + noise * rng.standard_normal(f.shape)
 
 
-def test_pusher_force_observation_detects_contact_and_support_friction() -> None:
+@pytest.mark.parametrize("axes", ["normal", "both"])
+def test_pusher_force_observation_detects_contact_and_support_friction(axes: str) -> None:
     from dbcslam_core.observation import ForceObservation
     from dbcslam_core.synthetic import push_trajectory
 
     traj = push_trajectory(0, side_position=0.8)
     force = _push_force(traj, 0.05, np.random.default_rng(5))
     sc = traj.scenario
-    cfg = FilterConfig.preset("push", particles=80)
+    cfg = FilterConfig.preset("push", particles=80, force_axes=axes)
 
     def run(use_force: bool) -> tuple[float, np.ndarray]:
         f = DbcSlamFilter(sc, cfg, np.random.default_rng(3))
@@ -238,6 +239,8 @@ def test_force_observation_validation(edge_traj: Trajectory) -> None:
         f.step(obs, inp, force=ForceObservation(0.0, 0.0, obstacle="nope"))
     with pytest.raises(ModelError, match="force_noise"):
         FilterConfig(force_noise=0.0)
+    with pytest.raises(ModelError, match="force_axes"):
+        FilterConfig(force_axes="tangent")
     # naming the edge obstacle works (a contact force reading on the edge)
     est = f.step(obs, inp, force=ForceObservation(0.0, 0.0, obstacle="edge"))
     assert est.step == 1

@@ -65,3 +65,25 @@ def test_params_validate() -> None:
         TransitionParams(gap_scale=0.0)
     with pytest.raises(ModelError):
         mode_transition(np.zeros((1, 3)), np.zeros((1, 3)), P)
+
+
+def test_edge_consistency_raises_contact_of_hovering_edge_partner() -> None:
+    from dbcslam_core.transition import edge_consistency
+
+    base = TransitionParams(gap_scale=1e-4)
+    phi = np.array([3e-4, 3e-4, 3e-3])
+    rate = np.zeros(3)
+    soft = soft_modes(phi, rate, np.array([0.0, 0.05, 0.0]), 0.01, base)
+    partner = np.array([1.0, 0.0, 1.0])
+    off = edge_consistency(soft, phi, rate, 0.01, partner_contact=partner, params=base)
+    np.testing.assert_array_equal(off, soft)  # tolerance 0: disabled
+    on_p = TransitionParams(gap_scale=1e-4, edge_tolerance=5e-4)
+    on = edge_consistency(soft, phi, rate, 0.01, partner_contact=partner, params=on_p)
+    np.testing.assert_allclose(on.sum(axis=-1), 1.0)
+    assert on[0, Mode.SEPARATED] < 0.2 < soft[0, Mode.SEPARATED]  # partner touches, gap small
+    np.testing.assert_allclose(on[1], soft[1])  # no partner in contact
+    assert on[2, Mode.SEPARATED] > 0.99  # gap far beyond the tolerance
+    # the stick / slide split given contact is kept
+    np.testing.assert_allclose(
+        on[0, 1:] / on[0, 1:].sum(), soft[0, 1:] / soft[0, 1:].sum(), rtol=1e-9
+    )

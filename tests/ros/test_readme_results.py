@@ -144,7 +144,9 @@ def test_missing_results_and_bad_files(repo: Path, tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("name", "expected"),
     [
-        ("edge_overview.png", "Edge (table polishing) (synthetic data): all panels"),
+        ("edge_overview.png", "Edge (table polishing) (synthetic data): x-y path, x over"),
+        ("sim_push_offcentre_overview.png", "off-centre (pybullet data): object path, yaw"),
+        ("other_overview.png", "other (synthetic data): all panels"),
         ("sim_edge_x_time.png", "Edge (table polishing) (pybullet data): x over time"),
         ("gripper_friction.png", "(true mu = 0.4)"),
         ("sim_push_friction.png", "Planar push (pybullet data): posterior of the pusher"),
