@@ -39,7 +39,7 @@ experiments: venv
 
 bench: venv
 	$(BIN)/python -m dbcslam_ros.bench
-	$(BIN)/python -m dbcslam_ros.bench_live
+	$(BIN)/python -m dbcslam_ros.bench_live --offline
 	$(BIN)/python -m dbcslam_ros.readme_results
 
 clean:

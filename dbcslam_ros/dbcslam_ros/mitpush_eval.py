@@ -84,8 +84,9 @@ TARGET_CONTACT_AGREEMENT = 0.9
 #: pushes says mu_surface = |F| / (m g) while the object moves (quasi-static pushing needs
 #: |F| <= mu m g, so this is a lower bound): median 0.34 (ellip1), 0.42 (ellip3), 0.45 (hex),
 #: range 0.26-0.58 over the 37 pushes with a live F/T stream, above the importer's default
-#: candidates (0.1 0.2 0.3). With those the force likelihood pins mu = 0.3 and the median
-#: contact agreement drops from 0.796 to 0.736, the yaw RMSE rises (0.46 -> 0.50 x noise).
+#: candidates (0.1 0.2 0.3). With those (same filter, 300 particles) the force likelihood
+#: pins mu = 0.3, the median contact agreement drops from 0.788 to 0.702 and the yaw RMSE
+#: rises from 0.45 to 0.60 x noise (1.16 x on the pushes with F/T).
 SURFACE_CANDIDATES: tuple[float, ...] = (0.2, 0.3, 0.4, 0.5)
 
 
