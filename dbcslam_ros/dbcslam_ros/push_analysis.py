@@ -1,7 +1,7 @@
 """How the MIT pushes really move: alignment fit, F/T findings, quasi-static prediction.
 
-Run ``python -m dbcslam_ros.push_analysis [DATA_DIR]`` (default: /work/shared/data/mit-push;
-reads ``abs/train/*.h5`` and ``shapes/``). It prints, per shape:
+Run ``python -m dbcslam_ros.push_analysis [DATA_DIR]`` (default: ../shared/data/mit-push,
+relative to the working directory; reads ``abs/train/*.h5`` and ``shapes/``). It prints, per shape:
 
 1. Alignment: the first-contact location error and tip-outline gap with the importer's
    constants (:data:`dbcslam_ros.mitpush.ALIGNMENTS`), and an unconstrained least-squares
@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 FloatArray = mp.FloatArray
-DEFAULT_DATA = Path("/work/shared/data/mit-push")
+DEFAULT_DATA = Path("../shared/data/mit-push")
 PUSHER_MU = 0.25
 C_SCALES = (1.0, 0.8, 0.7, 0.6, 0.5)
 
