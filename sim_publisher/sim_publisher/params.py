@@ -419,8 +419,10 @@ class PushParams(SimParams):
     along it, push direction `angle` (rad) relative to the side's inward normal; the pusher
     starts `approach` (m) before touching and moves at constant `speed` (m/s) for `approach +
     travel` (m), then stops. mu_surface: object-support friction, mu_pusher: pusher-object
-    friction (both true values, hidden). support_pair: if set, name of a second friction pair
-    (the support) in the `/scenario` YAML.
+    friction (both true values, hidden; each is one of `friction_candidates`). support_pair:
+    name of the second friction pair (object-support friction) in the `/scenario` YAML,
+    default `surface`; null leaves the support out of the a-priori model, and the filter then
+    treats the table as frictionless.
     """
 
     duration: float = 2.5
@@ -436,9 +438,9 @@ class PushParams(SimParams):
     speed: float = 0.05
     approach: float = 0.04
     travel: float = 0.05
-    mu_surface: float = 0.25
+    mu_surface: float = 0.3
     mu_pusher: float = 0.2
-    support_pair: str | None = None
+    support_pair: str | None = "surface"
     friction_candidates: tuple[float, ...] = (0.1, 0.2, 0.3)
     friction_prior: tuple[float, ...] = (1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0)
 
