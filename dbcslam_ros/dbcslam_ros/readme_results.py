@@ -270,8 +270,11 @@ def render_results(results_dir: Path, readme_dir: Path) -> str:
                 if path.with_suffix(".json").is_file()
                 else None
             )
-            lines += [f"### {title}", "", f"Date: {_date(path, data)}.", ""]
-            lines += _markdown_body(path, level_shift=2)
+            body = _markdown_body(path, level_shift=2)
+            lines += [f"### {title}", ""]
+            if not any(re.search(r"\d{4}-\d{2}-\d{2}", ln) for ln in body[:5]):
+                lines += [f"Date: {_date(path, data)}.", ""]  # the report states none
+            lines += body
     return "\n".join(lines).rstrip() + "\n"
 
 

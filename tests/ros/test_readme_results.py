@@ -118,6 +118,11 @@ def test_optional_sections_and_check(repo: Path) -> None:
     assert "](dbcslam_core/doc/results/sim/sim_push_offcentre_yaw.png): Planar push, off" in body
     assert "Date: today; rate 100 Hz" in body
     assert main(["--readme", str(readme), "--results", str(res), "--check"]) == 0
+    # a report that states its own date gets no extra Date line
+    (res / "bench_live.md").write_text("# Live\n\nCommand: `x`; 2026-11-21 06:53 UTC\n")
+    update_readme(readme, res)
+    live = readme.read_text().split("### Live timing")[1]
+    assert "Date:" not in live and "2026-11-21 06:53 UTC" in live
 
 
 def test_no_markers_leaves_readme_alone(repo: Path, capsys: pytest.CaptureFixture[str]) -> None:
