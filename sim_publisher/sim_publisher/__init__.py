@@ -1,6 +1,8 @@
 """pybullet simulations of the DBC-SLAM scenarios (edge, gripper, push) and their ROS node.
 
-Names are imported lazily so that `import sim_publisher` does not load pybullet.
+Names are imported lazily so that `import sim_publisher` does not load pybullet. The one-call
+runner is `sim_publisher.simulate.simulate(name, ...)` (not re-exported here: the submodule of
+the same name would shadow it).
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ __all__ = [
     "load_params",
     "make_simulation",
     "params_to_dict",
-    "simulate",
     "to_trajectory",
 ]
 
@@ -52,7 +53,6 @@ _WHERE = {
     "PushSimulation": "push",
     "SIMULATIONS": "simulate",
     "make_simulation": "simulate",
-    "simulate": "simulate",
     "to_trajectory": "trajectory",
 }
 
