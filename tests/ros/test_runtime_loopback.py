@@ -19,7 +19,8 @@ _UDP = re.compile(r"udp/(\d+\.\d+\.\d+\.\d+)")
 def test_default_config_is_loopback_only(monkeypatch) -> None:
     for var in ("DBCSLAM_DDS_INTERFACE", "DBCSLAM_DDS_PEERS", "DBCSLAM_DDS_RESPECT_URI"):
         monkeypatch.delenv(var, raising=False)
-    monkeypatch.setenv("CYCLONEDDS_URI", "<CycloneDDS><Domain><General><AllowMulticast>true")
+    # A user's own Cyclone configuration in the environment is ignored by default.
+    monkeypatch.setenv("CYCLONEDDS_URI", "file:///etc/cyclonedds/site-wide.xml")
     cfg = dds_config.config_from_env()
     xml = cfg.to_xml()
     assert xml is not None
