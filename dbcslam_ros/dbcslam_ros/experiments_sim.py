@@ -59,6 +59,7 @@ from dbcslam_core.experiments import (
     RunTrace,
     Target,
     TargetCheck,
+    edge_targets,
     evaluate_targets,
     run_dbcslam,
     run_filter,
@@ -70,6 +71,7 @@ from dbcslam_core.metrics import friction_map_accuracy, position_rmse, slid_cell
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
+from dbcslam_ros.experiments import TABLE_METRICS, fmt_value, verdict
 
 __all__ = [
     "DEFAULT_OUT",
@@ -113,23 +115,7 @@ SIM_OVERRIDES: dict[str, dict[str, Any]] = {
 """Simulator parameter overrides per scenario (on top of the sim_publisher defaults)."""
 
 SIM_TARGETS: tuple[Target, ...] = (
-    Target("edge", "position RMSE <= 0.6 x noise std", "position_rmse_ratio", "<=", 0.6),
-    Target("edge", "in-contact classification >= 95% of steps", "contact_accuracy", ">=", 0.95),
-    Target("edge", "stick/slide >= 90% of in-contact steps", "stick_slide_accuracy", ">=", 0.90),
-    Target(
-        "edge",
-        "friction map: true mu posterior > 0.5 in >= 90% of slid cells",
-        "friction_map_accuracy",
-        ">=",
-        0.90,
-    ),
-    Target(
-        "edge",
-        "fixed-friction RMSE >= 2 x DBC-SLAM (better candidate)",
-        "fixed_rmse_ratio_best",
-        ">=",
-        2.0,
-    ),
+    *edge_targets(position_ratio=0.6),
     Target(
         "edge",
         "fixed-friction RMSE / DBC-SLAM (worse candidate)",
@@ -450,35 +436,10 @@ def run_sim_experiments(
 
 # ------------------------------------------------------------------------------ output
 _TABLE_METRICS: tuple[tuple[str, str, float], ...] = (
-    ("position_rmse", "pos RMSE [mm]", 1e3),
-    ("position_rmse_ratio", "pos RMSE / noise", 1.0),
-    ("obs_position_rmse", "obs RMSE [mm]", 1e3),
-    ("yaw_rmse", "yaw RMSE [mrad]", 1e3),
-    ("yaw_rmse_ratio", "yaw RMSE / noise", 1.0),
-    ("contact_accuracy", "in-contact acc", 1.0),
-    ("stick_slide_accuracy", "stick/slide acc", 1.0),
-    ("contact_mode_accuracy", "mode acc (all)", 1.0),
-    ("contact_mode_accuracy_in_contact", "mode acc (in contact)", 1.0),
-    ("friction_map_accuracy", "friction-map acc", 1.0),
-    ("friction_map_cells", "slid cells", 1.0),
-    ("final_true_friction_posterior", "final P(true mu) pair 0", 1.0),
+    *TABLE_METRICS,
     ("live_hypotheses", "live hyp / particle", 1.0),
     ("step_time_ms", "step time [ms]", 1.0),
 )
-
-
-def _fmt(x: float, digits: int = 3) -> str:
-    if not math.isfinite(x):
-        return "n/a"
-    if abs(x) >= 1000:
-        return f"{x:.0f}"
-    return f"{x:.{digits}g}" if abs(x) < 1e-3 and x != 0 else f"{x:.{digits}f}"
-
-
-def _verdict(c: TargetCheck) -> str:
-    if c.passed is None:
-        return "report"
-    return "PASS" if c.passed else "FAIL"
 
 
 def render_markdown(
@@ -515,8 +476,8 @@ def render_markdown(
     ]
     for c in checks:
         t = c.target
-        thr = "-" if t.op == "report" else f"{t.op} {_fmt(t.threshold)}"
-        lines.append(f"| {t.scenario} | {t.label} | {_fmt(c.value)} | {thr} | {_verdict(c)} |")
+        thr = "-" if t.op == "report" else f"{t.op} {fmt_value(t.threshold)}"
+        lines.append(f"| {t.scenario} | {t.label} | {fmt_value(c.value)} | {thr} | {verdict(c)} |")
     lines += ["", "## Medians per method", ""]
     for scen, methods in summary.items():
         cols = [(m, h, s) for m, h, s in _TABLE_METRICS if any(m in v for v in methods.values())]
@@ -524,7 +485,7 @@ def render_markdown(
         lines.append("| method | " + " | ".join(h for _, h, _ in cols) + " |")
         lines.append("|---|" + "---|" * len(cols))
         for meth, vals in methods.items():
-            cells = [_fmt(vals.get(m, math.nan) * s) for m, _, s in cols]
+            cells = [fmt_value(vals.get(m, math.nan) * s) for m, _, s in cols]
             lines.append(f"| {meth} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += ["## Per seed", "", "| scenario | seed | method | pos RMSE [mm] | metrics |"]
@@ -539,9 +500,10 @@ def render_markdown(
         "final_true_friction_posterior",
     )
     for r in results.records:
-        extra = ", ".join(f"{k}={_fmt(v)}" for k, v in r.metrics.items() if k in keys)
+        extra = ", ".join(f"{k}={fmt_value(v)}" for k, v in r.metrics.items() if k in keys)
         lines.append(
-            f"| {r.scenario} | {r.seed} | {r.method} | {_fmt(r.metrics['position_rmse'] * 1e3)}"
+            f"| {r.scenario} | {r.seed} | {r.method} | "
+            f"{fmt_value(r.metrics['position_rmse'] * 1e3)}"
             f" | {extra} |"
         )
     lines.append("")
@@ -783,7 +745,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     paths = write_outputs(results, args.out, command, elapsed, figures=not args.no_figures)
     say("")
     for c in evaluate_targets(results.records, SIM_TARGETS):
-        say(f"  [{_verdict(c):6s}] {c.target.scenario:8s} {c.target.label}: {_fmt(c.value)}")
+        say(f"  [{verdict(c):6s}] {c.target.scenario:8s} {c.target.label}: {fmt_value(c.value)}")
     say(f"wrote {len(paths)} files to {args.out} in {elapsed:.0f} s")
     return 0
 
