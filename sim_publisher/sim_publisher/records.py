@@ -9,7 +9,7 @@ about the centre of mass (pusher wrench: about the pusher axis).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -58,22 +58,14 @@ class SimRecord:
         """Bitwise equality of all fields (reproducibility checks)."""
         if self.t != other.t:
             return False
-        for name in (
-            "pose",
-            "twist",
-            "observed_pose",
-            "wrench",
-            "joints",
-            "observed_joints",
-            "pusher_wrench",
-            "observed_pusher_wrench",
-            "modes",
-            "friction",
-            "normal_forces",
-        ):
+        for name in ARRAY_FIELDS:
             if not np.array_equal(getattr(self, name), getattr(other, name)):
                 return False
         return True
+
+
+#: The per-sample array fields of SimRecord (everything but the time `t`).
+ARRAY_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(SimRecord) if f.name != "t")
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,19 +90,7 @@ class SimRun:
     def stack(self) -> dict[str, FloatArray]:
         """All records as arrays with a leading time axis: 't' (N,), 'pose' (N, 3), ..."""
         out: dict[str, FloatArray] = {"t": np.array([r.t for r in self.records])}
-        for name in (
-            "pose",
-            "twist",
-            "observed_pose",
-            "wrench",
-            "joints",
-            "observed_joints",
-            "pusher_wrench",
-            "observed_pusher_wrench",
-            "modes",
-            "friction",
-            "normal_forces",
-        ):
+        for name in ARRAY_FIELDS:
             out[name] = np.stack([getattr(r, name) for r in self.records])
         return out
 
