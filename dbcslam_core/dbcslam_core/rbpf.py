@@ -33,6 +33,7 @@ from dbcslam_core.contact_modes import (
 from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
+from dbcslam_core.force_likelihood import force_log_likelihood
 from dbcslam_core.geometry import contact_kinematics
 from dbcslam_core.observation import (
     ForceObservation,
@@ -788,39 +789,26 @@ class DbcSlamFilter:
         normal: FloatArray,
         sig2: FloatArray,
     ) -> FloatArray:
-        """log N(f; f_hb, std^2 I + G diag(sig2) G^T) (N, B) of a force reading.
+        """log-likelihood (N, B) of a force reading; see :mod:`dbcslam_core.force_likelihood`.
 
         sol: the reduced solution (impulses (N, B, C) and their sensitivity to the free
         velocity); normal (N, C, 2) contact normals (into the body, world frame); sig2 (nv,)
-        the velocity process-noise variances of the step. G = d f_hb / d v_free: the process
-        noise is force noise on the body, which the obstacle's contact impulses absorb in
-        constrained directions, so it widens the predicted force (std^2 alone would make the
-        reading over-confident about hypotheses whose velocity is off by the process noise).
+        the velocity process-noise variances of the step.
         """
         sel = self._contact_obstacle == obstacle
         std = self.config.force_noise if force.std is None else force.std
-        n = normal[:, None, sel, :]  # (N, 1, Cs, 2)
-        t = np.stack([n[..., 1], -n[..., 0]], axis=-1)
-        f_pred = -np.sum(n * sol.ln[..., sel, None] + t * sol.lt[..., sel, None], axis=-2)
-        f_pred = f_pred / self.dt  # (N, B, 2)
-        r = np.asarray([force.fx, force.fy]) - f_pred
-        cov = np.broadcast_to(std * std * np.eye(2), (*r.shape[:-1], 2, 2))
-        if sol.impulse_response is not None:
-            dln = sol.impulse_response[..., 0, sel, :]  # (N, B, Cs, nv)
-            dlt = sol.impulse_response[..., 1, sel, :]
-            g = -np.einsum("nacx,nbcv->nbxv", n, dln) - np.einsum("nacx,nbcv->nbxv", t, dlt)
-            g = g / self.dt  # (N, B, 2, nv)
-            cov = cov + (g * sig2) @ np.swapaxes(g, -1, -2)
-        if self.config.force_axes == "normal":
-            # only the component along the (mean) contact normal
-            nb = np.sum(n, axis=-2)  # (N, 1, 2)
-            nb = nb / np.maximum(np.linalg.norm(nb, axis=-1, keepdims=True), 1e-12)
-            rn = np.sum(r * nb, axis=-1)
-            vn = np.einsum(
-                "nbx,nbxy,nby->nb", np.broadcast_to(nb, r.shape), cov, np.broadcast_to(nb, r.shape)
-            )
-            return np.asarray(-0.5 * (rn * rn / vn + np.log(2.0 * math.pi * vn)))
-        return gaussian_log_density(r, cov)
+        ir = None if sol.impulse_response is None else sol.impulse_response[..., sel, :]
+        return force_log_likelihood(
+            (force.fx, force.fy),
+            std,
+            normal[:, None, sel, :],
+            sol.ln[..., sel],
+            sol.lt[..., sel],
+            dt=self.dt,
+            impulse_response=ir,
+            sig2=sig2,
+            axes=self.config.force_axes,
+        )
 
     def _pair_marginals(self, fric_joint: FloatArray) -> FloatArray:
         """(P, B) joint friction belief -> (P, pairs, Kmax) per-pair marginals (zero-padded)."""
