@@ -71,7 +71,13 @@ from dbcslam_core.metrics import friction_map_accuracy, position_rmse, slid_cell
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
-from dbcslam_ros.experiments import TABLE_METRICS, fmt_value, verdict
+from dbcslam_ros.experiments import (
+    TABLE_METRICS,
+    print_checks,
+    report_sections,
+    utc_now,
+    write_json,
+)
 
 __all__ = [
     "DEFAULT_OUT",
@@ -350,10 +356,6 @@ def run_task(
     return rec, trace, time.perf_counter() - t0
 
 
-def _utc_now() -> str:
-    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-
-
 def _worker_init() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -447,7 +449,6 @@ def render_markdown(
 ) -> str:
     """The Markdown report: targets, medians per (scenario, method), per-seed values."""
     cfg = results.config
-    summary = summarize(results.records)
     dur = "simulator defaults" if cfg.duration is None else f"{cfg.duration:g} s"
     lines = [
         "# DBC-SLAM on pybullet data (issue 4)",
@@ -455,7 +456,7 @@ def render_markdown(
         f"Command: `{command}`  ",
         f"Seeds: {list(cfg.seeds)}; particles: {cfg.particles}; duration: {dur}; "
         f"simulator overrides: {json.dumps({k: dict(v) for k, v in cfg.sim_overrides.items()})}; "
-        f"wall time {elapsed:.0f} s on {cfg.workers} worker(s); date {_utc_now()}; 1-min load "
+        f"wall time {elapsed:.0f} s on {cfg.workers} worker(s); date {utc_now()}; 1-min load "
         f"average at the end {os.getloadavg()[0]:.1f}.",
         "",
         "Ground truth, observations and inputs come from the pybullet simulator "
@@ -469,55 +470,9 @@ def render_markdown(
         "`force_noise`, as in the filter node), `dbcslam_no_force` does not. Step times are "
         "offline wall times with the worker processes sharing the CPUs (not a live measurement).",
         "",
-        "## Targets",
-        "",
-        "| scenario | target | median | threshold | verdict |",
-        "|---|---|---|---|---|",
     ]
-    for c in checks:
-        t = c.target
-        thr = "-" if t.op == "report" else f"{t.op} {fmt_value(t.threshold)}"
-        lines.append(f"| {t.scenario} | {t.label} | {fmt_value(c.value)} | {thr} | {verdict(c)} |")
-    lines += ["", "## Medians per method", ""]
-    for scen, methods in summary.items():
-        cols = [(m, h, s) for m, h, s in _TABLE_METRICS if any(m in v for v in methods.values())]
-        lines += [f"### {scen}", ""]
-        lines.append("| method | " + " | ".join(h for _, h, _ in cols) + " |")
-        lines.append("|---|" + "---|" * len(cols))
-        for meth, vals in methods.items():
-            cells = [fmt_value(vals.get(m, math.nan) * s) for m, _, s in cols]
-            lines.append(f"| {meth} | " + " | ".join(cells) + " |")
-        lines.append("")
-    lines += ["## Per seed", "", "| scenario | seed | method | pos RMSE [mm] | metrics |"]
-    lines.append("|---|---|---|---|---|")
-    keys = (
-        "position_rmse_ratio",
-        "yaw_rmse_ratio",
-        "contact_accuracy",
-        "stick_slide_accuracy",
-        "contact_mode_accuracy",
-        "friction_map_accuracy",
-        "final_true_friction_posterior",
-    )
-    for r in results.records:
-        extra = ", ".join(f"{k}={fmt_value(v)}" for k, v in r.metrics.items() if k in keys)
-        lines.append(
-            f"| {r.scenario} | {r.seed} | {r.method} | "
-            f"{fmt_value(r.metrics['position_rmse'] * 1e3)}"
-            f" | {extra} |"
-        )
-    lines.append("")
+    lines += report_sections(results.records, checks, metrics=_TABLE_METRICS)
     return "\n".join(lines)
-
-
-def _json_safe(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    return x
 
 
 def write_outputs(
@@ -531,7 +486,7 @@ def write_outputs(
     cfg = results.config
     payload = {
         "command": command,
-        "date_utc": _utc_now(),
+        "date_utc": utc_now(),
         "elapsed_s": elapsed,
         "loadavg_1min": os.getloadavg()[0],
         "config": {
@@ -548,7 +503,7 @@ def write_outputs(
         "summary": summarize(results.records),
         "runs": [r.to_dict() for r in results.records],
     }
-    paths[1].write_text(json.dumps(_json_safe(payload), indent=2) + "\n", encoding="utf-8")
+    write_json(paths[1], payload)
     if figures:
         from dbcslam_ros.plotting import save_edge_figures, save_gripper_figures
 
@@ -744,8 +699,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     elapsed = time.perf_counter() - t0
     paths = write_outputs(results, args.out, command, elapsed, figures=not args.no_figures)
     say("")
-    for c in evaluate_targets(results.records, SIM_TARGETS):
-        say(f"  [{verdict(c):6s}] {c.target.scenario:8s} {c.target.label}: {fmt_value(c.value)}")
+    print_checks(evaluate_targets(results.records, SIM_TARGETS), say)
     say(f"wrote {len(paths)} files to {args.out} in {elapsed:.0f} s")
     return 0
 
