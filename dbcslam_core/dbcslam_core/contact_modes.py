@@ -9,6 +9,7 @@ tangential velocity of the body w.r.t. the obstacle along the contact tangent
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -42,6 +43,8 @@ class Mode(IntEnum):
 
 
 MODE_NAMES: tuple[str, ...] = ("separated", "sticking", "sliding_pos", "sliding_neg")
+# plain ints for the hot paths (IntEnum member access and conversion cost ~1 us each)
+_SEP, _STICK, _POS, _NEG = (int(m) for m in Mode)
 N_MODES: int = len(MODE_NAMES)
 
 
@@ -153,9 +156,12 @@ def solve_reduced(
     vne = np.asarray(vn_env, dtype=np.float64)
     vte = np.asarray(vt_env, dtype=np.float64)
     mu_a = np.asarray(mu, dtype=np.float64)
+    ms = None if mass is None else np.asarray(mass, dtype=np.float64)
     n_c = md.shape[-1]
     nv = vf.shape[-1]
-    lead = np.broadcast_shapes(
+    # Everything except mu ("geometry") is solved once per geometry element; mu only enters
+    # the assignments with sliding contacts, which are solved per (geometry, mu) element.
+    lead_g = np.broadcast_shapes(
         md.shape[:-1],
         vf.shape[:-1],
         im.shape[:-1],
@@ -164,67 +170,78 @@ def solve_reduced(
         phi_a.shape[:-1],
         vne.shape[:-1],
         vte.shape[:-1],
-        mu_a.shape[:-1],
+        () if ms is None else ms.shape[:-2],
     )
+    lead = np.broadcast_shapes(lead_g, mu_a.shape[:-1])
+    n_m = math.prod(lead)
+    n_g = math.prod(lead_g)
+
+    def gflat(x: FloatArray, tail: tuple[int, ...]) -> FloatArray:
+        if x.shape[: x.ndim - len(tail)] != lead_g:
+            x = np.broadcast_to(x, (*lead_g, *tail))
+        return x.reshape(n_g, *tail)
+
     # Free-motion contact velocities (independent of the assignment).
     an = (jn_a @ vf[..., None])[..., 0] - vne + phi_a / dt
     at = (jt_a @ vf[..., None])[..., 0] - vte
-
-    mdb = np.broadcast_to(md, (*lead, n_c))
-    act = np.flatnonzero(np.any(mdb != Mode.SEPARATED, axis=tuple(range(len(lead)))))
-    n_a = act.size
-    n_m = int(np.prod(lead, dtype=np.int64))
-    ln = np.zeros((n_m, n_c))
-    lt = np.zeros((n_m, n_c))
-    dv = np.zeros((n_m, nv))
-    response = np.tile(np.eye(nv), (n_m, 1, 1))
-    imp_resp = np.zeros((n_m, 2, n_c, nv)) if impulse_sensitivity else None
-    if n_a:
-        # All-separated entries keep v' = v_free (identity response). The others are solved
-        # over their own non-separated contacts only: each row's active contacts are moved to
-        # the front, so the systems are 2n x 2n with n the largest active count of a row.
-        rows = np.flatnonzero(np.any(mdb != Mode.SEPARATED, axis=-1).reshape(n_m))
-
-        def flat(x: FloatArray, tail: tuple[int, ...]) -> FloatArray:
-            return np.broadcast_to(x, (*lead, *tail)).reshape(n_m, *tail)[rows]
-
-        m_rows = mdb.reshape(n_m, n_c)[rows]
-        is_sep = m_rows == Mode.SEPARATED
-        n_max = int((~is_sep).sum(axis=1).max())
-        idx = np.argsort(is_sep, axis=1, kind="stable")[:, :n_max]  # (M, n_max)
-        idx3 = idx[..., None]
-        ln_s, lt_s, dv_s, resp_s, dlam_s = _solve_active(
-            np.take_along_axis(m_rows, idx, axis=1),
-            vf=flat(vf, (nv,)),
-            im=flat(im, (nv,)),
-            jn_act=np.take_along_axis(flat(jn_a, (n_c, nv)), idx3, axis=1),
-            jt_act=np.take_along_axis(flat(jt_a, (n_c, nv)), idx3, axis=1),
-            an_b=np.take_along_axis(flat(an, (n_c,)), idx, axis=1),
-            at_b=np.take_along_axis(flat(at, (n_c,)), idx, axis=1),
-            mu_act=np.take_along_axis(flat(mu_a, (n_c,)), idx, axis=1),
-            eps_rel=eps_rel,
-            mass=None if mass is None else flat(np.asarray(mass, dtype=np.float64), (nv, nv)),
-        )
-        ln[rows[:, None], idx] = ln_s
-        lt[rows[:, None], idx] = lt_s
-        dv[rows] = dv_s
-        response[rows] = resp_s
-        if imp_resp is not None:
-            sub = imp_resp[rows]  # (M, 2, C, nv)
-            r_ix = np.arange(rows.size)[:, None]
-            sub[r_ix, 0, idx] = dlam_s[:, :n_max]
-            sub[r_ix, 1, idx] = dlam_s[:, n_max:]
-            imp_resp[rows] = sub
-    ln = ln.reshape(*lead, n_c)
-    lt = lt.reshape(*lead, n_c)
-    dv = dv.reshape(*lead, nv)
-    response = response.reshape(*lead, nv, nv)
-    v_next = np.broadcast_to(vf, (*lead, nv)) + dv
-    gap_rate = (jn_a @ v_next[..., None])[..., 0] - vne + phi_a / dt
-    vt = (jt_a @ v_next[..., None])[..., 0] - vte
-    gap_rate = np.broadcast_to(gap_rate, (*lead, n_c))
-    vt = np.broadcast_to(vt, (*lead, n_c))
-    score = violation_score(mdb, ln, lt, gap_rate, vt, mu=mu_a, nv=nv, scales=sc, groups=groups)
+    mdg = np.broadcast_to(md, (*lead_g, n_c)).reshape(n_g, n_c)
+    # constraint rows [Jn; Jt] of every geometry element, flattened, plus one zero row
+    n_rows = n_g * 2 * n_c
+    g_ext = np.empty((n_rows + 1, nv))
+    w_all = g_ext[:n_rows].reshape(n_g, 2 * n_c, nv)
+    w_all[:, :n_c] = gflat(jn_a, (n_c, nv))
+    w_all[:, n_c:] = gflat(jt_a, (n_c, nv))
+    g_ext[n_rows] = 0.0
+    a_ext = np.empty(n_rows + 1)
+    a_all = a_ext[:n_rows].reshape(n_g, 2 * n_c)
+    a_all[:, :n_c] = gflat(an, (n_c,))
+    a_all[:, n_c:] = gflat(at, (n_c,))
+    a_ext[n_rows] = 0.0
+    # rows of M^-1 W^T (same layout, zero last row)
+    if ms is not None:
+        mw_ext = np.zeros_like(g_ext)
+        mw_ext[:n_rows] = np.swapaxes(
+            np.linalg.solve(gflat(ms, (nv, nv)), np.swapaxes(w_all, 1, 2)), 1, 2
+        ).reshape(n_rows, nv)
+    elif im.ndim == 1:
+        mw_ext = g_ext * im
+    else:
+        mw_ext = np.zeros_like(g_ext)
+        mw_ext[:n_rows] = (w_all * gflat(im, (nv,))[:, None, :]).reshape(n_rows, nv)
+    gi = np.broadcast_to(
+        np.arange(n_g).reshape((1,) * (len(lead) - len(lead_g)) + lead_g), lead
+    ).reshape(n_m)
+    sol = _solve_assignments(
+        mdg,
+        g_ext,
+        mw_ext,
+        a_ext,
+        gi,
+        mu_rows=_mu_rows(mu_a, lead, n_c),
+        eps_rel=eps_rel,
+        sensitivity=impulse_sensitivity,
+    )
+    ln = sol[0].reshape(*lead, n_c)
+    lt = sol[1].reshape(*lead, n_c)
+    dv = sol[2].reshape(*lead, nv)
+    response = sol[3].reshape(*lead, nv, nv)
+    imp_resp = sol[4]
+    v_next = vf + dv
+    # [Jn; Jt] v' of every lead element in one batched product (w_all: geometry layout)
+    lead_gp = (1,) * (len(lead) - len(lead_g)) + lead_g
+    j = len(lead_gp)
+    while j and lead_gp[j - 1] == 1:
+        j -= 1
+    if lead_gp[:j] == lead[:j] and len(lead) == len(lead_gp):
+        # geometry = leading axes: (G, rest, nv) @ (G, nv, 2C), no broadcasting
+        vv = np.broadcast_to(v_next, (*lead, nv)).reshape(n_g, n_m // n_g, nv)
+        wv = (vv @ np.swapaxes(w_all, 1, 2)).reshape(*lead, 2 * n_c)
+    else:
+        w_lead = w_all.reshape((*lead_gp, 2 * n_c, nv))
+        wv = (w_lead @ v_next[..., None])[..., 0]  # (*lead, 2C)
+    gap_rate = wv[..., :n_c] - vne + phi_a / dt
+    vt = wv[..., n_c:] - vte
+    score = violation_score(md, ln, lt, gap_rate, vt, mu=mu_a, nv=nv, scales=sc, groups=groups)
     return ReducedSolution(
         v_next=np.asarray(v_next, dtype=np.float64),
         ln=ln,
@@ -237,6 +254,187 @@ def solve_reduced(
         if imp_resp is None
         else np.asarray(imp_resp.reshape(*lead, 2, n_c, nv), dtype=np.float64),
     )
+
+
+def _mu_rows(mu_a: FloatArray, lead: tuple[int, ...], n_c: int) -> tuple[FloatArray, IntArray]:
+    """Distinct friction rows (U, C) of mu and the row of each lead element (n_m,)."""
+    mu_lead = mu_a.shape[:-1]
+    mu_lead = (1,) * (len(lead) - len(mu_lead)) + mu_lead
+    n_u = math.prod(mu_lead)
+    rows = mu_a.reshape(n_u, mu_a.shape[-1])
+    if rows.shape[1] != n_c:
+        rows = np.broadcast_to(rows, (n_u, n_c))
+    ui = np.arange(n_u).reshape(mu_lead)
+    if mu_lead != lead:
+        ui = np.broadcast_to(ui, lead)
+    return rows, ui.reshape(-1)
+
+
+def _solve_assignments(
+    modes: IntArray,
+    g_ext: FloatArray,
+    mw_ext: FloatArray,
+    a_ext: FloatArray,
+    gi: IntArray,
+    *,
+    mu_rows: tuple[FloatArray, IntArray],
+    eps_rel: float,
+    sensitivity: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+    """Impulses, dv, response (and d(ln, lt)/d v_free) of every lead element (n_m,).
+
+    Per geometry element g (modes (G, C); g_ext (G 2C + 1, nv) the rows [Jn; Jt] of each
+    element, flattened, and a final zero row; mw_ext the rows of M^-1 W^T, same layout;
+    a_ext (G 2C + 1,) free gap rates / slips, same layout) the equality rows are the normal rows
+    of the non-separated contacts and the tangent rows of the sticking ones (r rows). A
+    sliding contact's friction impulse follows its normal impulse (lt = -c ln, c = +mu
+    sliding_pos, -mu sliding_neg), so its normal column acts along f = Jn - c Jt. The
+    r x r system (G M^-1 F^T + eps I) lambda = -a is the padded 2n x 2n system of the
+    Stewart-Trinkle equalities with the identity rows (separated contacts, sliding tangent
+    rows) eliminated exactly; eps = eps_rel * the mean Delassus diagonal over the n_max
+    first-active-then-separated contacts (n_max: largest active count), as in the padded
+    form. Elements without sliding contacts are solved once per geometry element; gi (n_m,)
+    maps lead elements to geometry elements, mu_rows = (distinct mu rows (U, C), row of each
+    lead element (n_m,)).
+    """
+    n_g, n_c = modes.shape
+    nv = g_ext.shape[-1]
+    n_m = gi.size
+    mu_u, ui = mu_rows
+    two_c = 2 * n_c
+    sep = modes == _SEP
+    act = ~sep
+    stick = modes == _STICK
+    sgn = (modes == _POS).astype(np.float64) - (modes == _NEG)
+    n_act = act.sum(axis=1)
+    solve_g = n_act > 0
+    if not solve_g.any():
+        resp = np.broadcast_to(np.eye(nv), (n_m, nv, nv)).copy()
+        ir0 = np.zeros((n_m, 2, n_c, nv)) if sensitivity else None
+        return np.zeros((n_m, n_c)), np.zeros((n_m, n_c)), np.zeros((n_m, nv)), resp, ir0
+    # Tikhonov scale of the padded formulation (n_max over all elements with contacts).
+    n_max = int(n_act.max())
+    pad = act | (sep & (np.cumsum(sep, axis=1) <= (n_max - n_act)[:, None]))
+    n_rows = n_g * two_c
+    diag = np.einsum("kv,kv->k", g_ext[:n_rows], mw_ext[:n_rows]).reshape(n_g, two_c)
+    diag_mean = np.where(np.concatenate([pad, pad], axis=1), diag, 0.0).sum(axis=1) / (2 * n_max)
+    eps_g = eps_rel * np.maximum(diag_mean, 1e-300)
+    # Equality rows: normal slots (0..C-1) of active contacts, tangent slots (C..2C-1) of
+    # sticking ones, valid rows first.
+    slot_ok = np.concatenate([act, stick], axis=1)  # (G, 2C)
+    r_cnt = slot_ok.sum(axis=1)
+    r_max = int(r_cnt.max())
+    order = np.argsort(~slot_ok, axis=1, kind="stable")[:, :r_max]  # (G, R)
+    slides = np.any(sgn != 0.0, axis=1)
+    # systems to solve: once per geometry element without sliding contacts, per lead
+    # element with sliding contacts (their friction couples lt to ln)
+    g_fix = np.flatnonzero(solve_g & ~slides)
+    e_sl = np.flatnonzero(slides[gi])
+    n_fix = g_fix.size
+    sys_g = np.concatenate([g_fix, gi[e_sl]])  # geometry element of each system (S,)
+    sys_u = np.concatenate([np.zeros(n_fix, dtype=np.int64), ui[e_sl]])  # its mu row
+    n_s = sys_g.size
+    # sort the systems by size: each size class is a contiguous slice solved unpadded
+    perm = np.argsort(r_cnt.take(sys_g), kind="stable")
+    src = sys_g.take(perm)
+    size_s = r_cnt.take(src)
+    ord_s = order.take(src, axis=0)  # (S, R)
+    val_s = slot_ok.reshape(-1).take(src[:, None] * two_c + ord_s)
+    cont_s = ord_s % n_c
+    base = src[:, None] * two_c
+    fidx = np.where(val_s, base + ord_s, n_rows)  # invalid rows -> the zero row
+    gr = g_ext.take(fidx, axis=0)  # (S, R, nv) constraint rows G
+    mf = mw_ext.take(fidx, axis=0)  # rows of M^-1 F^T; sliding normal rows: below
+    cpl = np.zeros((n_s, r_max))
+    if e_sl.size:
+        is_n = val_s & (ord_s < n_c)
+        row_sgn = np.where(is_n, sgn.take(src[:, None] * n_c + cont_s), 0.0)
+        mu_sel = mu_u.take(sys_u.take(perm)[:, None] * n_c + cont_s)
+        cpl = row_sgn * mu_sel
+        mf -= cpl[..., None] * mw_ext.take(base + n_c + cont_s, axis=0)
+    rhs = np.concatenate([-a_ext.take(fidx)[..., None], -gr], axis=-1)  # (S, R, 1 + nv)
+    eps_s = eps_g.take(src)
+    x = np.zeros_like(rhs)
+    dv_t = np.zeros((n_s + 1, nv))
+    resp_t = np.zeros((n_s + 1, nv, nv))
+    bounds = np.searchsorted(size_s, [1, 2, 3, r_max + 1])
+    for k, a, b in ((1, bounds[0], bounds[1]), (2, bounds[1], bounds[2]), (r_max, bounds[2], n_s)):
+        if b <= a or k < 1:
+            continue
+        mf_t = np.swapaxes(mf[a:b, :k], 1, 2)  # M^-1 F^T (n, nv, k)
+        amat = gr[a:b, :k] @ mf_t
+        ar = np.arange(k)
+        amat[:, ar, ar] += np.where(val_s[a:b, :k], eps_s[a:b, None], 1.0)
+        xk = _solve_small(amat, rhs[a:b, :k])
+        x[a:b, :k] = xk
+        dv_t[a:b] = (mf_t @ xk[..., :1])[..., 0]
+        resp_t[a:b] = mf_t @ xk[..., 1:]
+    resp_t[:, np.arange(nv), np.arange(nv)] += 1.0
+    # scatter rows back to contact slots (invalid rows -> a dummy slot 2C); an extra zero
+    # system row S stands for the elements without contacts
+    slot = np.arange(n_s)[:, None] * (two_c + 1) + np.where(val_s, ord_s, two_c)
+    lam_slots = np.zeros((n_s + 1, two_c + 1))
+    lam_slots.reshape(-1)[slot] = x[..., 0]
+    cpl_slots = np.zeros((n_s + 1, two_c + 1))
+    cpl_slots.reshape(-1)[slot] = cpl
+    cpl_c = cpl_slots[:, :n_c]  # coupling per contact: lt = -c ln (sliding)
+    ln_t = lam_slots[:, :n_c]
+    lt_t = lam_slots[:, n_c:two_c] - cpl_c * ln_t
+    ir_t = None
+    if sensitivity:
+        sens_slots = np.zeros((n_s + 1, two_c + 1, nv))
+        sens_slots.reshape(-1, nv)[slot] = x[..., 1:]
+        ir_n = sens_slots[:, :n_c]
+        ir_t = np.stack([ir_n, sens_slots[:, n_c:two_c] - cpl_c[..., None] * ir_n], axis=1)
+    # system row of each lead element
+    inv = np.empty(n_s, dtype=np.int64)
+    inv[perm] = np.arange(n_s)
+    pos_g = np.full(n_g, n_s)
+    pos_g[g_fix] = inv[:n_fix]
+    row_e = pos_g.take(gi)
+    row_e[e_sl] = inv[n_fix:]
+    return (
+        ln_t.take(row_e, axis=0),
+        lt_t.take(row_e, axis=0),
+        dv_t.take(row_e, axis=0),
+        resp_t.take(row_e, axis=0),
+        None if ir_t is None else ir_t.take(row_e, axis=0),
+    )
+
+
+def _solve_small(amat: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Solve the batch amat (S, k, k) x = rhs (S, k, m) for small k.
+
+    k = 1 and 2 in closed form (division, Cramer's rule: forward stable for 2 x 2; LAPACK's
+    per-matrix overhead dominates for tiny systems), larger k with a batched
+    `np.linalg.solve`. Raises SolverError for singular systems.
+    """
+    k = amat.shape[-1]
+    x: FloatArray
+    if k == 1:
+        x = rhs / amat
+    elif k == 2:
+        a = amat[:, 0, 0, None]
+        b = amat[:, 0, 1, None]
+        c = amat[:, 1, 0, None]
+        d = amat[:, 1, 1, None]
+        r0 = rhs[:, 0]
+        r1 = rhs[:, 1]
+        det = a * d - b * c  # zero only for singular systems: caught below (non-finite)
+        x = np.empty_like(rhs)
+        x[:, 0] = (d * r0 - b * r1) / det
+        x[:, 1] = (a * r1 - c * r0) / det
+    else:
+        try:
+            x = np.asarray(np.linalg.solve(amat, rhs), dtype=np.float64)
+        except np.linalg.LinAlgError as err:
+            msg = f"reduced dynamics system is singular for some of {amat.shape[0]} assignments"
+            raise SolverError(msg) from err
+    if not np.all(np.isfinite(x)):
+        n_bad = int((~np.isfinite(x)).any(axis=(1, 2)).sum())
+        msg = f"reduced dynamics system is singular for {n_bad} of {amat.shape[0]} assignments"
+        raise SolverError(msg)
+    return np.asarray(x, dtype=np.float64)
 
 
 @functools.lru_cache(maxsize=64)
@@ -271,93 +469,39 @@ def violation_score(
     vt_a = np.asarray(vt, dtype=np.float64)
     mu_a = np.asarray(mu, dtype=np.float64)
     shape = np.broadcast_shapes(md.shape, ln_a.shape, lt_a.shape, gr.shape, vt_a.shape, mu_a.shape)
-    mdb = np.broadcast_to(md, shape)
-    ln_b = np.broadcast_to(ln_a, shape)
-    lt_b = np.broadcast_to(lt_a, shape)
-    mu_b = np.broadcast_to(mu_a, shape)
-    sep_all = mdb == Mode.SEPARATED
-    v_sep = np.where(sep_all, np.maximum(0.0, -gr), 0.0)
-    v_slip = np.where(
-        mdb == Mode.SLIDING_POS,
-        np.maximum(0.0, -vt_a),
-        np.where(mdb == Mode.SLIDING_NEG, np.maximum(0.0, vt_a), 0.0),
+    # mode masks at the (often much smaller) shape of `modes`; broadcast in the arithmetic
+    sep = md == _SEP
+    stick = md == _STICK
+    # velocity inequalities: separated gap rate >= 0, sliding slip sign (exclusive cases)
+    v_neg = np.where(
+        sep,
+        -gr,
+        np.where(md == _POS, -vt_a, np.where(md == _NEG, vt_a, 0.0)),
     )
-    mag = np.abs(ln_b) + np.abs(lt_b) + sc.impulse_floor
-    i_neg = np.where(sep_all, 0.0, np.maximum(0.0, -ln_b)) / mag
-    stick_all = mdb == Mode.STICKING
-    if groups is None:
-        i_cone = np.where(stick_all, np.maximum(0.0, np.abs(lt_b) - mu_b * ln_b), 0.0) / mag
-        cone_sq = np.sum((i_cone / sc.impulse) ** 2, axis=-1)
-    else:
-        onehot = _group_onehot(tuple(int(x) for x in np.asarray(groups).reshape(-1)))
-        lt_g = np.einsum("...c,cg->...g", np.where(stick_all, lt_b, 0.0), onehot)
-        cap_g = np.einsum("...c,cg->...g", np.where(stick_all, mu_b * ln_b, 0.0), onehot)
-        mag_g = np.einsum(
-            "...c,cg->...g", np.where(stick_all, mag - sc.impulse_floor, 0.0), onehot
-        )
-        i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
-        cone_sq = np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
+    v_sq = np.sum((np.maximum(0.0, v_neg) / sc.velocity) ** 2, axis=-1)
+    mag = np.abs(ln_a) + np.abs(lt_a) + sc.impulse_floor
+    i_neg = np.where(sep, 0.0, np.maximum(0.0, -ln_a)) / mag
+    imp = np.sum((i_neg / sc.impulse) ** 2, axis=-1)
+    if np.any(stick):
+        if groups is None:
+            i_cone = np.where(stick, np.maximum(0.0, np.abs(lt_a) - mu_a * ln_a), 0.0) / mag
+            imp = imp + np.sum((i_cone / sc.impulse) ** 2, axis=-1)
+        else:
+            onehot = _group_onehot(tuple(int(x) for x in np.asarray(groups).reshape(-1)))
+            lt_g = np.where(stick, lt_a, 0.0)
+            cap_g = np.where(stick, mu_a * ln_a, 0.0)
+            mag_g = np.where(stick, mag - sc.impulse_floor, 0.0)
+            if onehot.shape[1] < onehot.shape[0]:  # else one contact per group: no sums
+                lt_g, cap_g, mag_g = lt_g @ onehot, cap_g @ onehot, mag_g @ onehot
+            i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
+            imp = imp + np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
     # Statically indeterminate assignments (more equality rows than dofs, e.g. a triangle
     # wedged between both jaws) have a family of impulse solutions; the min-norm one computed
     # here need not be the feasible one, so their impulse inequalities are not scored.
-    n_rows = np.sum(~sep_all, axis=-1) + np.sum(stick_all, axis=-1)
-    determinate = n_rows <= nv
-    imp_sq = np.where(determinate, np.sum((i_neg / sc.impulse) ** 2, axis=-1) + cone_sq, 0.0)
-    score = np.sum(((v_sep + v_slip) / sc.velocity) ** 2, axis=-1) + imp_sq
+    n_rows = np.sum(~sep, axis=-1) + np.sum(stick, axis=-1)
+    score = v_sq + np.where(n_rows <= nv, imp, 0.0)
+    score = np.broadcast_to(score, shape[:-1])
     return np.asarray(score, dtype=np.float64)
-
-
-def _solve_active(
-    m_a: IntArray,
-    *,
-    vf: FloatArray,
-    im: FloatArray,
-    jn_act: FloatArray,
-    jt_act: FloatArray,
-    an_b: FloatArray,
-    at_b: FloatArray,
-    mu_act: FloatArray,
-    eps_rel: float,
-    mass: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Impulses, dv, response and d lambda / d v_free (M, 2Ca, nv) of the reduced system on
-    the active contacts (rows (M,))."""
-    n_a = m_a.shape[-1]
-    nv = vf.shape[-1]
-    w = np.concatenate([jn_act, jt_act], axis=-2)  # (M, 2Ca, nv)
-    if mass is None:
-        wm = w * im[..., None, :]  # (M^-1 W^T)^T for a diagonal mass
-    else:  # full effective mass: solved, not inverted
-        wm = np.swapaxes(np.linalg.solve(mass, np.swapaxes(w, -1, -2)), -1, -2)
-    d = wm @ np.swapaxes(w, -1, -2)
-    diag_mean = np.mean(np.diagonal(d, axis1=-2, axis2=-1), axis=-1)
-    eps = eps_rel * np.maximum(diag_mean, 1e-300)
-    eye = np.eye(2 * n_a)
-    sep = m_a == Mode.SEPARATED
-    stick = m_a == Mode.STICKING
-    pos = m_a == Mode.SLIDING_POS
-    neg = m_a == Mode.SLIDING_NEG
-    vel_row = np.concatenate([~sep, stick], axis=-1)
-    amat = np.where(vel_row[..., None], d + eps[..., None, None] * eye, eye)
-    coup = np.where(pos, mu_act, np.where(neg, -mu_act, 0.0))
-    ar = np.arange(n_a)
-    amat[..., n_a + ar, ar] += coup
-    rhs = np.concatenate([np.where(~sep, -an_b, 0.0), np.where(stick, -at_b, 0.0)], -1)
-    sens = np.concatenate(
-        [np.where(~sep[..., None], -jn_act, 0.0), np.where(stick[..., None], -jt_act, 0.0)],
-        axis=-2,
-    )
-    rhs_all = np.concatenate([rhs[..., None], sens], axis=-1)
-    try:
-        sol_all = np.linalg.solve(amat, rhs_all)
-    except np.linalg.LinAlgError as err:
-        msg = f"reduced dynamics system is singular for {m_a.shape[0]} assignments"
-        raise SolverError(msg) from err
-    lam = sol_all[..., 0]
-    wt_sol = np.swapaxes(wm, -1, -2) @ sol_all  # M^-1 W^T sol
-    dv = wt_sol[..., 0]
-    response = np.eye(nv) + wt_sol[..., 1:]
-    return lam[..., :n_a], lam[..., n_a:], dv, response, sol_all[..., 1:]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -410,6 +554,30 @@ class ContactLayout:
         return tuple(out)
 
 
+@functools.lru_cache(maxsize=64)
+def _layout_rules(
+    layout: ContactLayout,
+) -> tuple[tuple[tuple[int, ...], ...], tuple[tuple[int, int], ...], tuple[tuple[int, int], ...]]:
+    """Static exclusion rules of a layout (cached: used every step): contact index groups of
+    one flat obstacle with more than two vertex contacts, forbidden pairs, same-feature
+    pairs."""
+    crowded = []
+    for obst in sorted(set(layout.obstacle)):
+        idx = tuple(c for c in range(layout.n_contacts) if layout.obstacle[c] == obst)
+        if layout.n_vertices > 0 and len(idx) > 2:
+            crowded.append(idx)
+    return tuple(crowded), layout.forbidden_pairs(), layout.same_feature_pairs()
+
+
+@functools.lru_cache(maxsize=256)
+def _mixed_radix(radix: tuple[int, ...]) -> IntArray:
+    """(prod(radix), len(radix)) all digit tuples in C order (cached, read-only)."""
+    n_t = math.prod(radix)
+    out = np.stack(np.unravel_index(np.arange(n_t), radix), -1).astype(np.int64)
+    out.setflags(write=False)
+    return out
+
+
 def geometric_feasible(
     layout: ContactLayout,
     modes: npt.ArrayLike,
@@ -425,15 +593,13 @@ def geometric_feasible(
     combination is always excluded.
     """
     md = np.asarray(modes)
-    inc = md != Mode.SEPARATED
+    inc = md != _SEP
     ok = np.ones(md.shape[:-1], dtype=bool)
-    for obst in sorted(set(layout.obstacle)):
-        idx = [c for c in range(layout.n_contacts) if layout.obstacle[c] == obst]
-        if layout.n_vertices > 0 and len(idx) > 2:
-            ok &= inc[..., idx].sum(axis=-1) <= 2
-    for a, b in layout.forbidden_pairs():
+    crowded, forbidden, pairs = _layout_rules(layout)
+    for idx in crowded:
+        ok &= inc[..., list(idx)].sum(axis=-1) <= 2
+    for a, b in forbidden:
         ok &= ~(inc[..., a] & inc[..., b])
-    pairs = layout.same_feature_pairs()
     if pairs:
         ph = None if phi is None else np.asarray(phi, dtype=np.float64)
         for a, b in pairs:
@@ -484,7 +650,7 @@ def enumerate_hypotheses(
     mg = np.asarray(marginals, dtype=np.float64)
     n_p, n_c, _ = mg.shape
     order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4)
-    sp = np.take_along_axis(mg, order, axis=-1)
+    sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
     live = sp >= threshold
     live[..., 0] = True
     n_live = live.sum(axis=-1)  # (P, C)
@@ -492,7 +658,7 @@ def enumerate_hypotheses(
     while int(np.prod(radix)) > max_tuples:
         radix[int(np.argmax(radix))] -= 1
     n_t = int(np.prod(radix))
-    ranks = np.stack(np.unravel_index(np.arange(n_t), tuple(int(r) for r in radix)), -1)
+    ranks = _mixed_radix(tuple(int(r) for r in radix))
     with np.errstate(divide="ignore"):
         lsp = np.log(sp)  # (P, C, 4)
     lsp = np.where(live, lsp, -np.inf)
@@ -501,11 +667,14 @@ def enumerate_hypotheses(
     pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
     if pre_k < n_t:
         sel = np.argpartition(-logp, pre_k - 1, axis=1)[:, :pre_k]
-    else:
-        sel = np.broadcast_to(np.arange(n_t), (n_p, n_t))
-    logp_s = np.take_along_axis(logp, sel, axis=1)
-    rk = ranks[sel]  # (P, T', C)
-    modes_s = np.take_along_axis(order[:, None, :, :], rk[..., None], axis=-1)[..., 0]
+        logp_s = np.take_along_axis(logp, sel, axis=1)
+        rk = ranks[sel]  # (P, T', C)
+    else:  # all tuples
+        logp_s = logp
+        rk = np.broadcast_to(ranks, (n_p, *ranks.shape))
+    # modes_s[p, t, c] = order[p, c, rk[p, t, c]] (flat gather)
+    base_pc = (np.arange(n_p) * (n_c * N_MODES))[:, None, None] + np.arange(n_c) * N_MODES
+    modes_s = order.take(base_pc + rk)  # (P, T', C)
     if layout is not None:
         ph = None if phi is None else np.asarray(phi, dtype=np.float64)[:, None, :]
         feas = geometric_feasible(layout, modes_s, ph)
@@ -513,7 +682,10 @@ def enumerate_hypotheses(
     k = min(max_hypotheses, logp_s.shape[1])
     top = np.argsort(-logp_s, axis=1, kind="stable")[:, :k]
     logp_k = np.take_along_axis(logp_s, top, axis=1)
-    modes_k = np.take_along_axis(modes_s, top[..., None], axis=1)
+    n_ts = modes_s.shape[1]
+    modes_k = modes_s.take(
+        ((np.arange(n_p) * n_ts)[:, None] + top)[..., None] * n_c + np.arange(n_c)
+    )  # modes_s[p, top[p, k], c]
     # Prune by normalised joint probability (keep the best hypothesis of each particle).
     m = logp_k[:, :1]
     m_safe = np.where(np.isfinite(m), m, 0.0)

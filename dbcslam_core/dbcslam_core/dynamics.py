@@ -447,6 +447,21 @@ class PlanarModel:
         b[..., 0] = kin.phi / self.scenario.dt + vn_free - kin.vn_env
         b[..., 1] = vt_free
         b[..., 2] = -vt_free
+        free = muc == 0.0
+        if np.any(free):
+            # Frictionless contacts: lt = 0 exactly. Their (lt+, lt-, s) rows with mu = 0 are
+            # degenerate (Lemke can ray-terminate on them), so they are decoupled to w = z,
+            # b = 0 (solution z = 0); the slide speed is filled in after the solve.
+            fb = np.broadcast_to(free, (*lead, c))
+            rows = np.zeros((*lead, c, 4, 1, 1), dtype=bool)
+            rows[..., :, 1:, 0, 0] = fb[..., :, None]
+            cols = np.zeros((*lead, 1, 1, c, 4), dtype=bool)
+            cols[..., 0, 0, :, 1:] = fb[..., :, None]
+            a = np.where(rows | cols, 0.0, a)
+            ar = np.arange(c)
+            for k in (1, 2, 3):
+                a[..., ar, k, ar, k] = np.where(fb, 1.0, a[..., ar, k, ar, k])
+            b[..., :, 1:] = np.where(fb[..., None], 0.0, b[..., :, 1:])
         return (
             a.reshape(*lead, 4 * c, 4 * c),
             b.reshape(*lead, 4 * c),
@@ -625,6 +640,8 @@ class PlanarModel:
         vt = np.einsum("...ck,...k->...c", kin.Jt, v_next) - kin.vt_env
         if slide is None:
             slide = np.where(np.abs(lt) >= muc * ln * (1.0 - 1e-9), np.abs(vt), 0.0)
+        else:  # frictionless contacts were decoupled in the LCP: they slide at |vt|
+            slide = np.where(muc == 0.0, np.abs(vt), slide)
         modes = modes_from_lcp(ln, slide, vt)
         return StepResult(
             q=q_next,

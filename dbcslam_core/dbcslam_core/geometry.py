@@ -20,6 +20,7 @@ from .scenario import PRESSURE_MODELS, Disk, HalfSpace, Scenario
 
 __all__ = [
     "ContactKinematics",
+    "contact_coordinates",
     "contact_kinematics",
     "cross2",
     "polygon_area",
@@ -422,3 +423,39 @@ def contact_kinematics(
         s[..., idx] = lay.perim0[k] + ttk * np.sqrt(elen2)[k]
         normal[..., idx, :] = n_w
     return ContactKinematics(phi, jn, jt, vn_env, vt_env, point, s, normal)
+
+
+def contact_coordinates(scenario: Scenario, q: ArrayLike, env: ArrayLike | None = None) -> F64:
+    """The contact coordinates s (..., C) (m) of `contact_kinematics` alone.
+
+    Same arguments, broadcasting and values as ``contact_kinematics(scenario, q, env).s``;
+    for half-space contacts s = p . t depends on the pose only and is computed without the
+    rest of the kinematics (disk contacts fall back to the full computation).
+    """
+    lay = _layout(scenario)
+    if len(lay.dk_idx):
+        return contact_kinematics(scenario, q, env).s
+    nq = scenario.nq
+    qa = np.asarray(q, dtype=np.float64)
+    if qa.ndim < 1 or qa.shape[-1] != nq:
+        msg = f"q must have shape (..., {nq}) for scenario '{scenario.kind}', got {qa.shape}"
+        raise ModelError(msg)
+    lead = qa.shape[:-1]
+    if env is not None:
+        ea = np.asarray(env, dtype=np.float64)
+        if ea.ndim < 1 or ea.shape[-1] != len(scenario.joints):
+            msg = (
+                f"env must have shape (..., {len(scenario.joints)}) (joints "
+                f"{list(scenario.joints)}), got {ea.shape}"
+            )
+            raise ModelError(msg)
+        lead = np.broadcast_shapes(lead, ea.shape[:-1])
+        qa = np.broadcast_to(qa, (*lead, nq))
+    s = np.empty((*lead, scenario.n_contacts))
+    if len(lay.hs_idx):
+        yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
+        p = qa[..., None, 0:2] + rotate(yaw[..., None], lay.hs_r)
+        n = lay.hs_n
+        t = np.stack([n[:, 1], -n[:, 0]], -1)
+        s[..., lay.hs_idx] = np.sum(p * t, -1)
+    return s

@@ -106,8 +106,10 @@ class LinearObservation:
 
     def residual(self, q_obs: npt.ArrayLike) -> FloatArray:
         """Innovation o - q[..., index] (angular dims wrapped), shape (..., D)."""
-        r = self.value - np.asarray(q_obs, dtype=np.float64)
-        return np.asarray(np.where(self.angular, wrap_angle(r), r), dtype=np.float64)
+        r = np.asarray(self.value - np.asarray(q_obs, dtype=np.float64), dtype=np.float64)
+        if self.angular.any():  # wrap the angular columns only (same values, less work)
+            r[..., self.angular] = wrap_angle(r[..., self.angular])
+        return r
 
     def log_likelihood(self, q: npt.ArrayLike) -> FloatArray:
         """log p(o | q) for q (..., nq)."""
@@ -334,6 +336,69 @@ class JointSmoother:
         return np.asarray(self.x[:, 0].copy(), dtype=np.float64)
 
 
+def _chol_entries(a: FloatArray) -> list[list[FloatArray]]:
+    """Lower Cholesky factor of SPD matrices a (..., n, n), small n: low[i][j] (j <= i) are
+    (...) arrays (structure of arrays: every operation is one vectorised op over the batch,
+    no small-axis reductions; pivots clipped at 1e-300)."""
+    n = a.shape[-1]
+    low: list[list[FloatArray]] = [[] for _ in range(n)]
+    for j in range(n):
+        d = a[..., j, j]
+        if j:
+            s = low[j][0] * low[j][0]
+            for k in range(1, j):
+                s = s + low[j][k] * low[j][k]
+            d = d - s
+        ljj = np.sqrt(np.maximum(d, 1e-300))
+        low[j].append(ljj)
+        for i in range(j + 1, n):
+            num = a[..., i, j]
+            if j:
+                s = low[i][0] * low[j][0]
+                for k in range(1, j):
+                    s = s + low[i][k] * low[j][k]
+                num = num - s
+            low[i].append(num / ljj)
+    return low
+
+
+def _forward_entries(low: list[list[FloatArray]], b: FloatArray) -> list[FloatArray]:
+    """Rows y_i (..., m) of L^-1 b for b (..., n, m) (forward substitution)."""
+    y: list[FloatArray] = []
+    for i in range(len(low)):
+        acc = b[..., i, :]
+        if i:
+            s = low[i][0][..., None] * y[0]
+            for k in range(1, i):
+                s = s + low[i][k][..., None] * y[k]
+            acc = acc - s
+        y.append(acc / low[i][i][..., None])
+    return y
+
+
+def _backward_entries(low: list[list[FloatArray]], y: list[FloatArray]) -> list[FloatArray]:
+    """Rows x_i (..., m) of L^-T y (back substitution)."""
+    n = len(low)
+    x: list[FloatArray] = [y[0]] * n
+    for i in reversed(range(n)):
+        acc = y[i]
+        if i + 1 < n:
+            s = low[i + 1][i][..., None] * x[i + 1]
+            for k in range(i + 2, n):
+                s = s + low[k][i][..., None] * x[k]
+            acc = acc - s
+        x[i] = acc / low[i][i][..., None]
+    return x
+
+
+def _logdet_entries(low: list[list[FloatArray]]) -> FloatArray:
+    """log det(L L^T) = 2 sum log L_ii."""
+    s = np.log(low[0][0])
+    for i in range(1, len(low)):
+        s = s + np.log(low[i][i])
+    return np.asarray(2.0 * s, dtype=np.float64)
+
+
 def _cholesky_small(a: FloatArray) -> FloatArray:
     """Batched Cholesky factor L (lower) of SPD matrices (..., n, n) for small n.
 
@@ -341,32 +406,24 @@ def _cholesky_small(a: FloatArray) -> FloatArray:
     faster than LAPACK's per-matrix call overhead for millions of 2x2 / 3x3 blocks.
     """
     n = a.shape[-1]
+    ent = _chol_entries(a)
     low = np.zeros_like(a)
-    for j in range(n):
-        d = a[..., j, j] - np.sum(low[..., j, :j] ** 2, axis=-1)
-        ljj = np.sqrt(np.maximum(d, 1e-300))
-        low[..., j, j] = ljj
-        for i in range(j + 1, n):
-            low[..., i, j] = (
-                a[..., i, j] - np.sum(low[..., i, :j] * low[..., j, :j], axis=-1)
-            ) / ljj
+    for i in range(n):
+        for j in range(i + 1):
+            low[..., i, j] = ent[i][j]
     return low
+
+
+def _entries_of(low: FloatArray) -> list[list[FloatArray]]:
+    n = low.shape[-1]
+    return [[low[..., i, j] for j in range(i + 1)] for i in range(n)]
 
 
 def _cho_solve_small(low: FloatArray, b: FloatArray) -> FloatArray:
     """Solve (L L^T) x = b for b (..., n, m) by forward and back substitution."""
-    n = low.shape[-1]
-    y = np.zeros_like(b)
-    for i in range(n):
-        acc = b[..., i, :] - np.einsum("...k,...km->...m", low[..., i, :i], y[..., :i, :])
-        y[..., i, :] = acc / low[..., i, i, None]
-    x = np.zeros_like(b)
-    for i in reversed(range(n)):
-        acc = y[..., i, :] - np.einsum(
-            "...k,...km->...m", low[..., i + 1 :, i], x[..., i + 1 :, :]
-        )
-        x[..., i, :] = acc / low[..., i, i, None]
-    return x
+    ent = _entries_of(low)
+    x = _backward_entries(ent, _forward_entries(ent, b))
+    return np.asarray(np.stack(x, axis=-2), dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -423,18 +480,27 @@ def gaussian_proposal(
     idx = obs.index
     n_d = idx.size
     observed[idx] = True
-    s_o = dt * dt * sv[..., idx, :][..., :, idx] + np.diag(sq[idx] ** 2 + obs.var)
-    pred = qa[..., idx] + dt * vh[..., idx]
+    every = n_d == nq and bool(np.all(idx == np.arange(nq)))  # all dims, in order: no gathers
+    sv_o = sv if every else sv[..., idx, :][..., :, idx]
+    s_o = dt * dt * sv_o + np.diag(sq[idx] ** 2 + obs.var)
+    pred = qa + dt * vh if every else qa[..., idx] + dt * vh[..., idx]
     y = obs.residual(pred)
-    innov[..., idx] = y
-    c = dt * sv[..., :, idx]  # cov(v', o) (..., nv, D)
+    if every:
+        innov = np.asarray(np.broadcast_to(y, innov.shape), dtype=np.float64)
+    else:
+        innov[..., idx] = y
+    c = dt * (sv if every else sv[..., :, idx])  # cov(v', o) (..., nv, D)
     rhs = np.concatenate([y[..., None], np.swapaxes(c, -1, -2)], axis=-1)  # (..., D, 1 + nv)
-    chol = _cholesky_small(s_o)
-    x = _cho_solve_small(chol, rhs)
-    logdet = 2.0 * np.sum(np.log(np.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
-    maha = np.sum(y * x[..., 0], axis=-1)
+    # S = L L^T: with Z = L^-1 [y, c^T], maha = |Z_y|^2 and c S^-1 [y, c^T] = Z_c^T Z
+    low = _chol_entries(s_o)
+    z = _forward_entries(low, rhs)  # D rows (..., 1 + nv)
+    logdet = _logdet_entries(low)
+    maha = z[0][..., 0] * z[0][..., 0]
+    cx = z[0][..., 1:, None] * z[0][..., None, :]  # (..., nv, 1 + nv)
+    for i in range(1, n_d):
+        maha = maha + z[i][..., 0] * z[i][..., 0]
+        cx = cx + z[i][..., 1:, None] * z[i][..., None, :]
     log_pred = -0.5 * (maha + logdet + n_d * _LOG_2PI)
-    cx = c @ x  # (..., nv, 1 + nv)
     v_mean = vh + cx[..., 0]
     v_cov = sv - cx[..., 1:]
     r_q = sq[idx] ** 2 + obs.var
@@ -470,8 +536,17 @@ def sample_gaussian_proposal(
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     scale = np.maximum(np.max(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), axis=-1), 1e-300)
     jitter = 1e-12 * scale[..., None, None] * np.eye(vm.shape[-1])
-    chol = _cholesky_small(cov + jitter)
-    v_new = vm + np.einsum("...ij,...j->...i", chol, rng.standard_normal(vm.shape))
+    low = _chol_entries(cov + jitter)
+    z = rng.standard_normal(vm.shape)
+    n = vm.shape[-1]
+    corr = np.stack(
+        [
+            sum((low[i][k] * z[..., k] for k in range(1, i + 1)), low[i][0] * z[..., 0])
+            for i in range(n)
+        ],
+        axis=-1,
+    )
+    v_new = vm + corr
     y = np.asarray(innovation, dtype=np.float64)
     r = y - dt * (v_new - np.asarray(v_h, dtype=np.float64))
     q_mean = np.where(prop.observed, prop.q_gain * r, 0.0)
@@ -487,8 +562,10 @@ def gaussian_log_density(x: npt.ArrayLike, cov: npt.ArrayLike) -> FloatArray:
     n = xa.shape[-1]
     xa = np.broadcast_to(xa, (*lead, n))
     ca = np.broadcast_to(ca, (*lead, n, n))
-    chol = _cholesky_small(ca)
-    sol = _cho_solve_small(chol, xa[..., None])[..., 0]
-    logdet = 2.0 * np.sum(np.log(np.diagonal(chol, axis1=-2, axis2=-1)), axis=-1)
-    out = -0.5 * (np.sum(xa * sol, axis=-1) + logdet + n * _LOG_2PI)
+    low = _chol_entries(ca)
+    z = _forward_entries(low, xa[..., None])  # rows of L^-1 x: x^T cov^-1 x = |L^-1 x|^2
+    maha = z[0][..., 0] * z[0][..., 0]
+    for i in range(1, n):
+        maha = maha + z[i][..., 0] * z[i][..., 0]
+    out = -0.5 * (maha + _logdet_entries(low) + n * _LOG_2PI)
     return np.asarray(out, dtype=np.float64)

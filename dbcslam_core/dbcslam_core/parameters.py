@@ -207,8 +207,13 @@ class FrictionMap:
         w_ok = w_a[ok]
         n = self.n_cells
         wp = w_ok[:, None] * p_a[ok]
-        for k in range(wp.shape[1]):  # bincount: much faster than np.add.at
-            self._sums[pair][:, k] += np.bincount(cells, weights=wp[:, k], minlength=n)
+        n_k = wp.shape[1]
+        # one bincount over (cell, candidate) bins (much faster than np.add.at; same order of
+        # accumulation per bin as one bincount per candidate)
+        bins = (cells[:, None] * n_k + np.arange(n_k)).reshape(-1)
+        self._sums[pair] += np.bincount(bins, weights=wp.reshape(-1), minlength=n * n_k).reshape(
+            n, n_k
+        )
         self._weight[pair] += np.bincount(cells, weights=w_ok, minlength=n)
 
     def posterior(self, pair: int) -> FloatArray:

@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from dbcslam_core.contact_modes import (
@@ -109,6 +109,11 @@ def test_gripper_reduced_velocity_equals_lcp(
     y = gap - float(np.min(kin.phi[:3]))  # lowest vertex `gap` above the lower jaw
     q, v, u = np.array([0.0, y, yaw]), np.array([vx, vy, w]), np.array([fx, fy, tau])
     r = model.step(State(q, v), u, env0, env1, mu=mu)
+    # The implied modes must be unambiguous: modes_from_lcp calls a slip below 1e-9 m/s
+    # sticking (and an impulse below 1e-10 N s separated); within 100x of those thresholds
+    # the mode is a rounding decision and the reduced solution may differ by ~ the threshold.
+    assume(not np.any((r.slide > 0.0) & (r.slide < 1e-7)))
+    assume(not np.any((r.ln > 0.0) & (r.ln < 1e-8)))
     sol = _reduced(model, q, v, u, env0, env1, np.full(6, mu), r.modes)
     # impulses may be non-unique (two sticking vertices on one jaw); velocities are unique
     np.testing.assert_allclose(sol.v_next, r.v, atol=1e-9)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dbcslam_core.contact_modes import Mode
@@ -204,6 +204,8 @@ def test_disk_pusher_pushes_and_drags() -> None:
 
 
 @settings(max_examples=60, deadline=None)
+# frictionless: Lemke ray-terminated on the (degenerate) friction rows before they were decoupled
+@example(seed=566896, yaw=-2.125, mu=0.0, touching="lower")
 @given(
     seed=st.integers(0, 2**32 - 1),
     yaw=st.floats(-math.pi, math.pi),

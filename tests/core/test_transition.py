@@ -87,3 +87,56 @@ def test_edge_consistency_raises_contact_of_hovering_edge_partner() -> None:
     np.testing.assert_allclose(
         on[0, 1:] / on[0, 1:].sum(), soft[0, 1:] / soft[0, 1:].sum(), rtol=1e-9
     )
+
+
+def test_contact_gap_legacy_and_time_stepping() -> None:
+    from dbcslam_core.transition import contact_gap
+
+    phi = np.array([3e-4, -2e-4, 5e-3])
+    inc = np.array([True, True, False])
+    # closure 1 without tolerance: the time-stepping model (whole gap within the step)
+    np.testing.assert_array_equal(contact_gap(phi, inc), phi)
+    # legacy partial closure: positive gaps of in-contact contacts only
+    np.testing.assert_allclose(contact_gap(phi, inc, closure=0.1), [3e-5, -2e-4, 5e-3])
+    with pytest.raises(ModelError, match="closure"):
+        contact_gap(phi, inc, closure=0.0)
+    with pytest.raises(ModelError, match="tolerance"):
+        contact_gap(phi, inc, closure=0.5, tolerance=-1.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    phi=st.floats(-5e-3, 5e-3),
+    closure=st.floats(0.01, 1.0),
+    tol=st.floats(0.0, 2e-3),
+    prev=st.floats(0.0, 1.0),
+)
+def test_contact_gap_band(phi: float, closure: float, tol: float, prev: float) -> None:
+    """Within the band (penetration: tolerance; gap: tolerance x previous P(contact)) a
+    residual is closed at `closure` per step, beyond it fully; same sign, never more than the
+    gap, separated contacts unchanged."""
+    from dbcslam_core.transition import contact_gap
+
+    out = contact_gap(
+        np.array([phi, phi]),
+        np.array([True, False]),
+        closure=closure,
+        tolerance=tol,
+        previous_contact=np.array([prev, prev]),
+    )
+    r = min(max(phi, -tol), tol * prev)
+    assert out[0] == pytest.approx(phi - (1.0 - closure) * r, abs=1e-15)
+    assert out[1] == phi
+    assert abs(out[0]) <= abs(phi) + 1e-15
+    assert out[0] * phi >= 0.0
+
+
+def test_contact_gap_spares_impacts() -> None:
+    """A persisting contact hovering / penetrating by a jaw-estimate jump closes it slowly; a new
+    contact (previous P(contact) 0: an impact) closes the whole gap within the step."""
+    from dbcslam_core.transition import contact_gap
+
+    phi = np.array([2e-4, -2e-4, 2e-4, 3e-3])
+    prev = np.array([1.0, 1.0, 0.0, 1.0])
+    out = contact_gap(phi, np.ones(4, bool), closure=0.1, tolerance=1e-3, previous_contact=prev)
+    np.testing.assert_allclose(out, [2e-5, -2e-5, 2e-4, 3e-3 - 0.9e-3])

@@ -239,6 +239,49 @@ def test_contact_flag_and_ft_frame(bags: dict[str, dict[str, list[tuple[int, Any
         assert np.mean(along < 0.0) > 0.9
 
 
+@pytest.mark.parametrize(
+    "path", [f for f in FILES if "rect1" not in f.name], ids=lambda p: mp.parse_push_name(p).shape
+)
+def test_geometric_flag_is_a_touching_flag(path: Path) -> None:
+    """Where both exist (live F/T), the geometric flag of the stale-F/T files agrees with the
+    F/T flag while the object moves and never misses an F/T contact; at rest it also counts
+    touches below the force threshold (documented in mitpush: specificity ~0)."""
+    raw = mp.load_push(path)
+    series = mp.resample_push(
+        raw, mp.load_outline(raw.info.shape, DATA / "shapes"), mp.ImportConfig()
+    )
+    assert series.force is not None
+    geo = mp.geometric_contact(series.pose, series.tip, series.outline, series.dt)
+    speed = np.linalg.norm(np.gradient(series.pose[:, :2], series.dt, axis=0), axis=1)
+    moving = speed > mp.MOVING_SPEED
+    assert moving.sum() > 20
+    assert np.mean(geo[moving] == series.contact[moving]) > 0.95
+    assert np.mean(geo[series.contact]) > 0.95
+    assert np.mean(geo[~series.contact]) > 0.5  # light touches at rest count as contact
+
+
+def test_tip_readings_are_precise_and_declared(
+    bags: dict[str, dict[str, list[tuple[int, Any]]]],
+) -> None:
+    """The scenario declares the tip noise the data has (tens of um, not the simulator's
+    0.5 mm): residual of the tip about a quadratic fit at constant speed."""
+    for f in FILES:
+        scenario = Scenario.from_yaml(bags[_stem(f)]["/scenario"][0][1].data)
+        assert scenario.noise.joint == pytest.approx(mp.JOINT_NOISE)
+        raw = mp.load_push(f)
+        t = raw.tip[:, 0] - raw.tip[0, 0]
+        speed = np.linalg.norm(np.gradient(raw.tip[:, 1:3], t, axis=0), axis=1)
+        fast = np.flatnonzero(speed > 0.8 * raw.info.speed)
+        seg = fast[len(fast) // 3 : 2 * len(fast) // 3]
+        res = [
+            raw.tip[seg, j] - np.polyval(np.polyfit(t[seg], raw.tip[seg, j], 2), t[seg])
+            for j in (1, 2)
+        ]
+        assert float(np.std(res)) < 3.0 * mp.JOINT_NOISE
+    with pytest.raises(mp.MitPushError, match="joint_noise"):
+        mp.ImportConfig(joint_noise=-1e-5)
+
+
 def test_stale_ft_uses_geometric_contact(noisy_import: Path) -> None:
     import yaml
 

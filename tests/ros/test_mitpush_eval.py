@@ -128,7 +128,12 @@ def test_summary_medians_and_pass_flags() -> None:
     assert groups["overall"]["pass_pose"] and groups["overall"]["pass_contact"]
     assert groups["overall"]["friction"]["pusher"]["final_posterior_average"] == [1.0, 0.0]
     assert "ft_flag" not in groups
-    assert "| overall | 3 |" in markdown_table({"groups": groups})
+    assert groups["overall"]["pushes_over_noise"] == 0
+    assert "| overall | 3 (0) |" in markdown_table({"groups": groups})
+    # tracking failures (pose RMSE above the added noise) are counted, not hidden
+    worse = summarise([push("a", 0.2, 0.95), push("a", 1.4, 0.5), push("a", 0.3, 0.9)])
+    assert worse["a"]["pushes_over_noise"] == 1
+    assert worse["a"]["position_rmse_over_noise"] == pytest.approx(0.3)
 
 
 def test_missing_data_is_a_usage_error(tmp_path: Path) -> None:

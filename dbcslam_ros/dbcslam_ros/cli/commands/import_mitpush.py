@@ -137,7 +137,8 @@ def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
         candidates=cands,
         prior=tuple(tuple(1.0 / len(c) for _ in c) for c in cands),
     )
-    return dataclasses.replace(base, friction=friction)
+    noise = dataclasses.replace(base.noise, joint=config.joint_noise)  # measured tip noise
+    return dataclasses.replace(base, friction=friction, noise=noise)
 
 
 def _custom_data(series: PushSeries, config: ImportConfig) -> dict[str, str]:

@@ -1,0 +1,199 @@
+"""The optimised reduced-dynamics solver and small-matrix helpers against reference versions.
+
+`solve_reduced` eliminates the identity rows of the padded Stewart-Trinkle system, solves
+friction-independent assignments once per geometry element and tiny systems in closed form;
+`reduced_reference.solve_reduced_reference` is the previous padded implementation (one
+generic `np.linalg.solve` per element). They must agree to round-off on determinate
+assignments (statically indeterminate ones, e.g. two sticking vertices, are ill-conditioned
+by construction: their impulses only agree to ~cond * eps, their velocities closely).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from reduced_reference import solve_reduced_reference
+
+from dbcslam_core.contact_modes import (
+    ContactLayout,
+    Mode,
+    _solve_small,
+    geometric_feasible,
+    solve_reduced,
+)
+from dbcslam_core.dynamics import PlanarModel
+from dbcslam_core.errors import SolverError
+from dbcslam_core.geometry import contact_coordinates, contact_kinematics
+from dbcslam_core.observation import (
+    _cho_solve_small,
+    _chol_entries,
+    _cholesky_small,
+    gaussian_log_density,
+)
+from dbcslam_core.scenario import edge_scenario, gripper_scenario
+
+GRIPPER = gripper_scenario()
+EDGE = edge_scenario()
+
+
+def _problem(seed: int, n_p: int, n_k: int, p_contact: float):  # type: ignore[no-untyped-def]
+    """Random gripper states near the jaws, random mode assignments (N, 1, C) x mu (1, B, C)."""
+    rng = np.random.default_rng(seed)
+    model = PlanarModel(GRIPPER)
+    env = np.array([-0.03, 0.03])
+    q = np.column_stack(
+        [rng.normal(0, 0.003, n_p), rng.normal(0, 0.003, n_p), rng.uniform(-np.pi, np.pi, n_p)]
+    )
+    v = rng.normal(size=(n_p, 3)) * np.array([0.05, 0.05, 0.5])
+    kin = contact_kinematics(GRIPPER, q, env, rng.normal(size=2) * 0.01)
+    vf = v + GRIPPER.dt * model.generalized_force(q, v, np.zeros(3)) / model.mass_diag
+    modes = rng.integers(1, 4, size=(n_p, n_k, 6)) * (rng.random((n_p, n_k, 6)) < p_contact)
+    mu = np.array([0.1, 0.4, 0.7])[:, None] * np.ones(6)
+    pi = np.repeat(np.arange(n_p), n_k)
+    args = (modes.reshape(-1, 1, 6), vf[pi][:, None])
+    kwargs = {
+        "inv_mass": 1.0 / model.mass_diag,
+        "jn": kin.Jn[pi][:, None],
+        "jt": kin.Jt[pi][:, None],
+        "phi": kin.phi[pi][:, None],
+        "vn_env": kin.vn_env[pi][:, None],
+        "vt_env": kin.vt_env[pi][:, None],
+        "mu": mu[None],
+        "dt": GRIPPER.dt,
+        "groups": [c.obstacle for c in GRIPPER.potential_contacts],
+    }
+    return args, kwargs
+
+
+def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Determinate (equality rows <= dofs) and geometrically feasible assignments (what the
+    filter keeps: e.g. not one vertex on both jaws, whose rows are linearly dependent)."""
+    layout = ContactLayout(
+        feature_vertex=tuple(c.vertex for c in GRIPPER.potential_contacts),
+        obstacle=tuple(c.obstacle for c in GRIPPER.potential_contacts),
+        n_vertices=len(GRIPPER.body.vertices),
+    )
+    rows = (modes != Mode.SEPARATED).sum(-1) + (modes == Mode.STICKING).sum(-1)
+    return np.asarray((rows <= 3) & geometric_feasible(layout, modes, phi))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.25, 0.5]))
+def test_solve_reduced_matches_padded_reference(seed: int, p_contact: float) -> None:
+    args, kwargs = _problem(seed, 12, 4, p_contact)
+    for sens in (False, True):
+        new = solve_reduced(*args, impulse_sensitivity=sens, **kwargs)  # type: ignore[arg-type]
+        ref = solve_reduced_reference(*args, impulse_sensitivity=sens, **kwargs)
+        lam = np.abs(ref.ln).max(-1) + np.abs(ref.lt).max(-1)  # impulse scale (N s)
+        # well-posed and well-conditioned: near-singular sliding systems (Painleve-like,
+        # G M^-1 F^T ~ singular) give impulses of ~1e9 N s and are round-off dominated in
+        # both implementations (the filter's proposal rejects them: v' ~ 1e3 m/s)
+        ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
+        for f in ("v_next", "response", "gap_rate", "vt"):
+            np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
+        for f in ("ln", "lt"):
+            err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
+            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
+        np.testing.assert_allclose(new.score[ok], ref.score[ok], rtol=1e-8, atol=1e-9)
+        assert ok.any()
+        if sens:
+            assert new.impulse_response is not None and ref.impulse_response is not None
+            np.testing.assert_allclose(
+                new.impulse_response[ok], ref.impulse_response[ok], rtol=1e-7, atol=1e-7
+            )
+
+
+def test_friction_independent_entries_solved_once_are_identical_across_mu() -> None:
+    """Assignments without sliding contacts do not depend on mu: same solution per beta."""
+    args, kwargs = _problem(3, 20, 3, 0.3)
+    modes = np.where(args[0] >= Mode.SLIDING_POS, Mode.STICKING, args[0])
+    sol = solve_reduced(modes, args[1], **kwargs)  # type: ignore[arg-type]
+    for b in (1, 2):
+        np.testing.assert_array_equal(sol.v_next[:, b], sol.v_next[:, 0])
+        np.testing.assert_array_equal(sol.ln[:, b], sol.ln[:, 0])
+        np.testing.assert_array_equal(sol.response[:, b], sol.response[:, 0])
+
+
+def test_solve_reduced_edge_point_mass_matches_reference() -> None:
+    model = PlanarModel(EDGE)
+    rng = np.random.default_rng(1)
+    q = np.column_stack([rng.uniform(0, 2, 40), rng.normal(0, 1e-3, 40)])
+    v = rng.normal(size=(40, 2)) * 0.2
+    kin = contact_kinematics(EDGE, q)
+    # (N, K, B, C) = (40, 4, 3, 1): every mode for every particle x 3 frictions
+    modes = np.broadcast_to(np.arange(4)[None, :, None, None], (40, 4, 1, 1))
+    common = {
+        "inv_mass": 1.0 / model.mass_diag,
+        "jn": kin.Jn[:, None, None],
+        "jt": kin.Jt[:, None, None],
+        "phi": kin.phi[:, None, None],
+        "vn_env": kin.vn_env[:, None, None],
+        "vt_env": kin.vt_env[:, None, None],
+        "mu": np.array([[0.1], [0.3], [0.5]])[None, None],
+        "dt": EDGE.dt,
+        "groups": [0],
+    }
+    new = solve_reduced(modes, v[:, None, None], **common)  # type: ignore[arg-type]
+    ref = solve_reduced_reference(modes, v[:, None, None], **common)
+    for f in ("v_next", "ln", "lt", "score", "response", "gap_rate", "vt"):
+        np.testing.assert_allclose(getattr(new, f), getattr(ref, f), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+def test_solve_small_matches_linalg_solve(k: int) -> None:
+    rng = np.random.default_rng(k)
+    a = rng.normal(size=(200, k, k)) + 3.0 * np.eye(k)
+    b = rng.normal(size=(200, k, 4))
+    np.testing.assert_allclose(_solve_small(a, b), np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    entries=st.lists(st.floats(-1e3, 1e3), min_size=4, max_size=4),
+    rhs=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
+)
+def test_cramer_2x2_is_accurate(entries: list[float], rhs: list[float]) -> None:
+    a = np.asarray(entries).reshape(1, 2, 2)
+    b = np.asarray(rhs).reshape(1, 2, 1)
+    cond = np.linalg.cond(a[0])
+    if not np.isfinite(cond) or cond > 1e8:
+        return
+    x = _solve_small(a, b)
+    np.testing.assert_allclose(a @ x, b, atol=1e-9 * (1.0 + np.abs(a).max() * np.abs(x).max()))
+
+
+def test_solve_small_raises_on_singular() -> None:
+    for k in (1, 2, 3):
+        with pytest.raises(SolverError, match="singular"), np.errstate(all="ignore"):
+            _solve_small(np.zeros((2, k, k)), np.ones((2, k, 1)))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_small_cholesky_matches_numpy(n: int) -> None:
+    rng = np.random.default_rng(n)
+    x = rng.normal(size=(50, n, n + 2))
+    a = x @ np.swapaxes(x, -1, -2)
+    np.testing.assert_allclose(_cholesky_small(a), np.linalg.cholesky(a), rtol=1e-10, atol=1e-12)
+    low = _chol_entries(a)
+    np.testing.assert_allclose(low[n - 1][0], np.linalg.cholesky(a)[:, n - 1, 0], rtol=1e-10)
+    b = rng.normal(size=(50, n, 3))
+    np.testing.assert_allclose(
+        _cho_solve_small(_cholesky_small(a), b), np.linalg.solve(a, b), rtol=1e-8, atol=1e-10
+    )
+    v = rng.normal(size=(50, n))
+    _, logdet = np.linalg.slogdet(a)
+    sol = np.linalg.solve(a, v[..., None])[..., 0]
+    ref = -0.5 * (np.einsum("pi,pi->p", v, sol) + logdet + n * np.log(2 * np.pi))
+    np.testing.assert_allclose(gaussian_log_density(v, a), ref, rtol=1e-10)
+
+
+@pytest.mark.parametrize("scenario", [EDGE, GRIPPER])
+def test_contact_coordinates_equal_kinematics(scenario) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(30, scenario.nq))
+    env = rng.normal(size=len(scenario.joints))
+    np.testing.assert_array_equal(
+        contact_coordinates(scenario, q, env), contact_kinematics(scenario, q, env).s
+    )
