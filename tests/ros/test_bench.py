@@ -1,0 +1,67 @@
+"""`make bench` output: the plain-language reading is computed from the measured numbers."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from dbcslam_ros.bench import reading_lines, render_markdown
+
+
+def _row(scenario: str, particles: int, dbc: float, lemke: float, pgs: float) -> dict[str, Any]:
+    return {
+        "scenario": scenario,
+        "particles": particles,
+        "dbcslam_ms": dbc,
+        "dbcslam_rmse_mm": 1.0,
+        "dbcslam_live_hypotheses": 5.0,
+        "blackbox_pgs_ms": pgs,
+        "blackbox_pgs_rmse_mm": 1.5,
+        "blackbox_lemke_ms": lemke,
+        "blackbox_lemke_rmse_mm": 1.5,
+        "blackbox_lemke_as_ms": lemke / 2,
+        "blackbox_lemke_as_rmse_mm": 1.5,
+        "ratio_lemke_over_dbcslam": lemke / dbc if math.isfinite(lemke) else math.nan,
+        "ratio_lemke_as_over_dbcslam": lemke / 2 / dbc if math.isfinite(lemke) else math.nan,
+        "ratio_pgs_over_dbcslam": pgs / dbc,
+    }
+
+
+@pytest.mark.parametrize(
+    ("ratios", "expected"),
+    [
+        ((8.0, 12.0, 14.0), "met at 300, 1000 particles"),
+        ((11.0, 12.0, 14.0), "met at every measured particle count"),
+        ((2.0, 3.0, 4.0), "met at no measured particle count"),
+    ],
+)
+def test_reading_states_where_the_target_is_met(
+    ratios: tuple[float, float, float], expected: str
+) -> None:
+    rows = [_row("gripper", p, 1.0, r, 0.3) for p, r in zip((100, 300, 1000), ratios, strict=True)]
+    rows.append(_row("gripper", 3000, 1.0, math.nan, 0.3))  # Lemke not run there
+    text = "\n".join(reading_lines({"scaling": rows}))
+    assert expected in text
+    assert f"{min(ratios):.1f}-{max(ratios):.1f}x faster than the per-particle Lemke" in text
+    assert "takes 0.3x of DBC-SLAM's time" in text  # PGS faster: said, not hidden
+
+
+def test_markdown_contains_reading() -> None:
+    result = {
+        "scaling": [_row("edge", 100, 2.0, 10.0, 0.3)],
+        "accuracy": [],
+        "meta": {
+            "date_utc": "x",
+            "machine": "m",
+            "numpy": "2",
+            "cpus": 2,
+            "loadavg_1min_before_after": [0.0, 0.0],
+            "warmup": 5,
+            "repeat": 1,
+            "steps": 40,
+        },
+    }
+    md = render_markdown(result, "python -m dbcslam_ros.bench")
+    assert "**Reading the table.**" in md and "5.0x faster" in md
