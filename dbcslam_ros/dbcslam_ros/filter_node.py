@@ -392,7 +392,8 @@ class FilterNode:
         reading, received = self._pending
         self._pending = None
         session = self.session
-        if self._gated(reading.x, reading.y, reading.yaw, reading.stamp_ns):
+        c = session.correct(reading)  # the gate compares like with like (model sensor effects)
+        if self._gated(c.x, c.y, c.yaw, c.stamp_ns):
             self._exceed_in_row += 1
             if self._exceed_in_row >= DIVERGED_AFTER:
                 # Even accepted poses did not pull the estimate back: the filter is lost.

@@ -456,7 +456,13 @@ def _trajectory_messages(traj: Any, t0_ns: int) -> Iterator[tuple[str, Any, int]
     header_cls = rt.message_class("std_msgs/msg/Header")
     string_cls = rt.message_class("std_msgs/msg/String")
     contact_pair = np.asarray(sc.contact_pairs, dtype=np.int64)
-    first = [int(np.flatnonzero(contact_pair == p)[0]) for p in range(len(sc.friction.pairs))]
+    # per pair: the first contact of the pair (its coefficient varies along a patch), or -1
+    # for a pair without contacts (the support pair of a push: its constant true value)
+    first = [
+        int(hits[0]) if (hits := np.flatnonzero(contact_pair == p)).size else -1
+        for p in range(len(sc.friction.pairs))
+    ]
+    mu_pair = np.asarray(getattr(traj, "mu_pair", np.full(len(first), np.nan)), np.float64)
     eye = np.eye(4)
     yield "/scenario", string_cls(data=str(sc.to_yaml())), t0_ns
     for k in range(traj.n_steps):
@@ -493,7 +499,8 @@ def _trajectory_messages(traj: Any, t0_ns: int) -> Iterator[tuple[str, Any, int]
         modes = eye[np.asarray(traj.modes[k], dtype=np.int64)]
         yield "/truth/contact_modes", float64_multiarray(modes, ("contacts", "modes")), stamp
         mu = traj.mu[min(k + 1, traj.n_steps - 1)]
-        yield "/truth/friction", float64_multiarray(mu[first], ("pairs",)), stamp
+        per_pair = np.asarray([mu[c] if c >= 0 else mu_pair[p] for p, c in enumerate(first)])
+        yield "/truth/friction", float64_multiarray(per_pair, ("pairs",)), stamp
 
 
 def write_trajectory_bag(traj: Any, path: str | Path, *, t0_ns: int = 0) -> Path:

@@ -33,6 +33,12 @@ observation into filter steps. Rules (documented in the README):
   accuracy while it is behind.
 * Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
   the session counts them per reason and stays usable.
+* Observation-side model extensions (from a model file of `dbcslam discrepancy`): the core
+  model applies the dynamic effects itself; the session applies the sensor effects to every
+  pose before the filter sees it. ``sensor_bias`` (x, y, yaw): the bias is subtracted from the
+  observed pose (the filter estimates the true pose). ``sensor_delay`` (seconds): the pose
+  stamped t shows the state at t - seconds, so it is processed (and its estimate stamped) at
+  t - seconds, with the inputs of that time. Several of each add up.
 """
 
 from __future__ import annotations
@@ -40,7 +46,8 @@ from __future__ import annotations
 import bisect
 import time
 from collections import Counter, deque
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -51,9 +58,24 @@ from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.scenario import Disk, Scenario
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
 
-__all__ = ["FilterSession", "StampedEstimate"]
+__all__ = ["FilterSession", "StampedEstimate", "observation_correction"]
 
 NS = 1_000_000_000
+
+
+def observation_correction(
+    extensions: Sequence[ModelExtension],
+) -> tuple[tuple[float, float, float], float]:
+    """Summed ``sensor_bias`` (x m, y m, yaw rad) and ``sensor_delay`` (s) of extensions."""
+    bias = [0.0, 0.0, 0.0]
+    delay = 0.0
+    for e in extensions:
+        if e.effect == "sensor_bias":
+            bias[0] += e.param("x")
+            bias[1] += e.param("y")
+            bias[2] += e.param("yaw")
+        delay += e.delay
+    return (bias[0], bias[1], bias[2]), delay
 
 
 @dataclass(frozen=True)
@@ -163,6 +185,8 @@ class FilterSession:
         self.config = config
         self.seed = seed
         self.extensions = extensions
+        self.obs_bias, delay_s = observation_correction(extensions)
+        self.obs_delay_ns = round(delay_s * NS)
         self.reset_after_ns = int(reset_after_s * NS)
         self.max_gap_ns = int(max_gap_s * NS)
         # default: 1.5 model steps, so a reading at every sample is always found
@@ -215,8 +239,10 @@ class FilterSession:
 
         max_steps: run at most this many model steps for this pose (catch-up, see the module
         docstring); None runs the whole gap. Raises InputRejected (and counts it) for
-        observations that cannot be used.
+        observations that cannot be used. The reading is first corrected for the model's
+        sensor effects (`correct`).
         """
+        reading = self.correct(reading)
         dt_ns = round(self.scenario.dt * NS)
         last = self._last_pose_ns
         if last is not None and reading.stamp_ns < last - self.reset_after_ns:
@@ -278,6 +304,20 @@ class FilterSession:
         self.gap_steps += n_gap - 1
         self.skipped_steps += n_gap - n_run
         return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started, n_run)]
+
+    def correct(self, reading: PoseReading) -> PoseReading:
+        """The pose reading as the model's sensor effects say the true pose was: bias
+        removed, stamp moved back by the delay (identity without such extensions)."""
+        bx, by, byaw = self.obs_bias
+        if bx == 0.0 and by == 0.0 and byaw == 0.0 and self.obs_delay_ns == 0:
+            return reading
+        return replace(
+            reading,
+            stamp_ns=reading.stamp_ns - self.obs_delay_ns,
+            x=reading.x - bx,
+            y=reading.y - by,
+            yaw=float(wrap_angle(reading.yaw - byaw)),
+        )
 
     # -- introspection --------------------------------------------------------------------
     @property

@@ -1,4 +1,4 @@
-"""`dbcslam discrepancy` on pybullet edge runs with ONE hidden effect (sim_publisher injection).
+"""`dbcslam discrepancy` on pybullet runs with ONE hidden effect (sim_publisher injection).
 
 The robot's /scenario knows a single friction candidate 0.3 (= the nominal friction); the
 simulator hides one effect (viscous damping, a friction patch, an observation bias), drawn
@@ -84,4 +84,24 @@ def test_pybullet_hidden_friction_patch() -> None:
 
 def test_pybullet_without_hidden_effect_is_none() -> None:
     res = analyse([_run(segments=UNIFORM, force=FORCE)])
+    assert res.verdict == "none", res.evidence
+
+
+def test_pybullet_push_without_hidden_effect_is_none() -> None:
+    """A pybullet push (box on 4 support corners, /scenario: uniform pressure, friction known)
+    with no hidden effect: the analysis must not name one (start-state noise, pusher noise
+    and the sim-model support mismatch are not effects)."""
+    rng = _rng("push")
+    sim = simulate(
+        "push",
+        seed=int(rng.integers(1000)),
+        angle=float(rng.uniform(-0.3, 0.3)),
+        side_position=float(rng.uniform(0.3, 0.7)),
+        friction_candidates=(0.2,),
+        friction_prior=(1.0,),
+        mu_surface=0.2,
+        mu_pusher=0.2,
+    )
+    tr = to_trajectory(sim)
+    res = analyse([Run("pybullet-push", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)])
     assert res.verdict == "none", res.evidence
