@@ -12,6 +12,7 @@ import functools
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +30,7 @@ __all__ = [
     "enumerate_hypotheses",
     "geometric_feasible",
     "solve_reduced",
+    "sum_last",
     "violation_score",
 ]
 
@@ -55,6 +57,22 @@ N_MODES: int = len(MODE_NAMES)
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+
+
+def sum_last(x: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """x.sum(axis=-1) for a short last axis (< 8 entries) as a chain of slice additions.
+
+    numpy adds the entries of a short axis in order, so the values are the same; but a
+    reduction over a short inner axis costs ~10x more than a few elementwise additions
+    (it dominated the per-step cost of small arrays). Booleans are counted (int64).
+    """
+    n = x.shape[-1]
+    if n == 0 or n >= 8:
+        return np.asarray(x.sum(axis=-1))
+    out = x[..., 0].astype(np.int64) if x.dtype == np.bool_ else x[..., 0].copy()
+    for i in range(1, n):
+        out += x[..., i]
+    return out
 
 
 @dataclass(frozen=True)
@@ -184,7 +202,8 @@ def solve_reduced(
     # Free-motion contact velocities (independent of the assignment).
     an = (jn_a @ vf[..., None])[..., 0] - vne + phi_a / dt
     at = (jt_a @ vf[..., None])[..., 0] - vte
-    mdg = np.broadcast_to(md, (*lead_g, n_c)).reshape(n_g, n_c)
+    mdg = md if md.shape[:-1] == lead_g else np.broadcast_to(md, (*lead_g, n_c))
+    mdg = mdg.reshape(n_g, n_c)
     # constraint rows [Jn; Jt] of every geometry element, flattened, plus one zero row
     n_rows = n_g * 2 * n_c
     g_ext = np.empty((n_rows + 1, nv))
@@ -208,9 +227,11 @@ def solve_reduced(
     else:
         mw_ext = np.zeros_like(g_ext)
         mw_ext[:n_rows] = (w_all * gflat(im, (nv,))[:, None, :]).reshape(n_rows, nv)
-    gi = np.broadcast_to(
-        np.arange(n_g).reshape((1,) * (len(lead) - len(lead_g)) + lead_g), lead
-    ).reshape(n_m)
+    gi = np.arange(n_g)
+    if lead != lead_g:
+        gi = np.broadcast_to(gi.reshape((1,) * (len(lead) - len(lead_g)) + lead_g), lead).reshape(
+            n_m
+        )
     sol = _solve_assignments(
         mdg,
         g_ext,
@@ -234,14 +255,18 @@ def solve_reduced(
         j -= 1
     if lead_gp[:j] == lead[:j] and len(lead) == len(lead_gp):
         # geometry = leading axes: (G, rest, nv) @ (G, nv, 2C), no broadcasting
-        vv = np.broadcast_to(v_next, (*lead, nv)).reshape(n_g, n_m // n_g, nv)
+        vv = v_next if v_next.shape == (*lead, nv) else np.broadcast_to(v_next, (*lead, nv))
+        vv = vv.reshape(n_g, n_m // n_g, nv)
         wv = (vv @ np.swapaxes(w_all, 1, 2)).reshape(*lead, 2 * n_c)
     else:
         w_lead = w_all.reshape((*lead_gp, 2 * n_c, nv))
         wv = (w_lead @ v_next[..., None])[..., 0]  # (*lead, 2C)
     gap_rate = wv[..., :n_c] - vne + phi_a / dt
     vt = wv[..., n_c:] - vte
-    score = violation_score(md, ln, lt, gap_rate, vt, mu=mu_a, nv=nv, scales=sc, groups=groups)
+    onehot = None if groups is None else _onehot_of(groups)
+    score = _violation_score(md, ln, lt, gap_rate, vt, mu_a=mu_a, nv=nv, sc=sc, onehot=onehot)
+    if score.shape != lead:
+        score = np.broadcast_to(score, lead)
     return ReducedSolution(
         v_next=np.asarray(v_next, dtype=np.float64),
         ln=ln,
@@ -306,7 +331,7 @@ def _solve_assignments(
     act = ~sep
     stick = modes == _STICK
     sgn = (modes == _POS).astype(np.float64) - (modes == _NEG)
-    n_act = act.sum(axis=1)
+    n_act = sum_last(act)
     solve_g = n_act > 0
     if not solve_g.any():
         resp = np.broadcast_to(np.eye(nv), (n_m, nv, nv)).copy()
@@ -317,15 +342,15 @@ def _solve_assignments(
     pad = act | (sep & (np.cumsum(sep, axis=1) <= (n_max - n_act)[:, None]))
     n_rows = n_g * two_c
     diag = np.einsum("kv,kv->k", g_ext[:n_rows], mw_ext[:n_rows]).reshape(n_g, two_c)
-    diag_mean = np.where(np.concatenate([pad, pad], axis=1), diag, 0.0).sum(axis=1) / (2 * n_max)
+    diag_mean = sum_last(np.where(np.concatenate([pad, pad], axis=1), diag, 0.0)) / (2 * n_max)
     eps_g = eps_rel * np.maximum(diag_mean, 1e-300)
     # Equality rows: normal slots (0..C-1) of active contacts, tangent slots (C..2C-1) of
     # sticking ones, valid rows first.
     slot_ok = np.concatenate([act, stick], axis=1)  # (G, 2C)
-    r_cnt = slot_ok.sum(axis=1)
+    r_cnt = n_act + sum_last(stick)  # = slot_ok.sum(axis=1)
     r_max = int(r_cnt.max())
     order = np.argsort(~slot_ok, axis=1, kind="stable")[:, :r_max]  # (G, R)
-    slides = np.any(sgn != 0.0, axis=1)
+    slides = sum_last(modes >= _POS) > 0  # any sliding contact (sgn != 0)
     # systems to solve: once per geometry element without sliding contacts, per lead
     # element with sliding contacts (their friction couples lt to ln)
     g_fix = np.flatnonzero(solve_g & ~slides)
@@ -352,7 +377,9 @@ def _solve_assignments(
         mu_sel = mu_u.take(sys_u.take(perm)[:, None] * n_c + cont_s)
         cpl = row_sgn * mu_sel
         mf -= cpl[..., None] * mw_ext.take(base + n_c + cont_s, axis=0)
-    rhs = np.concatenate([-a_ext.take(fidx)[..., None], -gr], axis=-1)  # (S, R, 1 + nv)
+    rhs = np.empty((n_s, r_max, 1 + nv))  # [-a, -G] (S, R, 1 + nv)
+    np.negative(a_ext.take(fidx), out=rhs[..., 0])
+    np.negative(gr, out=rhs[..., 1:])
     eps_s = eps_g.take(src)
     x = np.zeros_like(rhs)
     dv_t = np.zeros((n_s + 1, nv))
@@ -430,7 +457,7 @@ def _solve_small(amat: FloatArray, rhs: FloatArray) -> FloatArray:
         except np.linalg.LinAlgError as err:
             msg = f"reduced dynamics system is singular for some of {amat.shape[0]} assignments"
             raise SolverError(msg) from err
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         n_bad = int((~np.isfinite(x)).any(axis=(1, 2)).sum())
         msg = f"reduced dynamics system is singular for {n_bad} of {amat.shape[0]} assignments"
         raise SolverError(msg)
@@ -469,6 +496,32 @@ def violation_score(
     vt_a = np.asarray(vt, dtype=np.float64)
     mu_a = np.asarray(mu, dtype=np.float64)
     shape = np.broadcast_shapes(md.shape, ln_a.shape, lt_a.shape, gr.shape, vt_a.shape, mu_a.shape)
+    onehot = None if groups is None else _onehot_of(groups)
+    score = _violation_score(md, ln_a, lt_a, gr, vt_a, mu_a=mu_a, nv=nv, sc=sc, onehot=onehot)
+    return np.asarray(np.broadcast_to(score, shape[:-1]), dtype=np.float64)
+
+
+def _onehot_of(groups: npt.ArrayLike) -> FloatArray:
+    """`_group_onehot` of a group sequence (tuples of ints, the filter's case, directly)."""
+    if isinstance(groups, tuple) and all(type(g) is int for g in groups):
+        return _group_onehot(groups)
+    return _group_onehot(tuple(int(x) for x in np.asarray(groups).reshape(-1)))
+
+
+def _violation_score(
+    md: IntArray,
+    ln_a: FloatArray,
+    lt_a: FloatArray,
+    gr: FloatArray,
+    vt_a: FloatArray,
+    *,
+    mu_a: FloatArray,
+    nv: int,
+    sc: ViolationScales,
+    onehot: FloatArray | None,
+) -> FloatArray:
+    """`violation_score` on arrays (no validation; the result is not broadcast to the
+    full shape: (...) of the terms that enter)."""
     # mode masks at the (often much smaller) shape of `modes`; broadcast in the arithmetic
     sep = md == _SEP
     stick = md == _STICK
@@ -478,30 +531,27 @@ def violation_score(
         -gr,
         np.where(md == _POS, -vt_a, np.where(md == _NEG, vt_a, 0.0)),
     )
-    v_sq = np.sum((np.maximum(0.0, v_neg) / sc.velocity) ** 2, axis=-1)
+    v_sq = sum_last((np.maximum(0.0, v_neg) / sc.velocity) ** 2)
     mag = np.abs(ln_a) + np.abs(lt_a) + sc.impulse_floor
     i_neg = np.where(sep, 0.0, np.maximum(0.0, -ln_a)) / mag
-    imp = np.sum((i_neg / sc.impulse) ** 2, axis=-1)
+    imp = sum_last((i_neg / sc.impulse) ** 2)
     if np.any(stick):
-        if groups is None:
+        if onehot is None:
             i_cone = np.where(stick, np.maximum(0.0, np.abs(lt_a) - mu_a * ln_a), 0.0) / mag
-            imp = imp + np.sum((i_cone / sc.impulse) ** 2, axis=-1)
+            imp = imp + sum_last((i_cone / sc.impulse) ** 2)
         else:
-            onehot = _group_onehot(tuple(int(x) for x in np.asarray(groups).reshape(-1)))
             lt_g = np.where(stick, lt_a, 0.0)
             cap_g = np.where(stick, mu_a * ln_a, 0.0)
             mag_g = np.where(stick, mag - sc.impulse_floor, 0.0)
             if onehot.shape[1] < onehot.shape[0]:  # else one contact per group: no sums
                 lt_g, cap_g, mag_g = lt_g @ onehot, cap_g @ onehot, mag_g @ onehot
             i_cone_g = np.maximum(0.0, np.abs(lt_g) - cap_g) / (mag_g + sc.impulse_floor)
-            imp = imp + np.sum((i_cone_g / sc.impulse) ** 2, axis=-1)
+            imp = imp + sum_last((i_cone_g / sc.impulse) ** 2)
     # Statically indeterminate assignments (more equality rows than dofs, e.g. a triangle
     # wedged between both jaws) have a family of impulse solutions; the min-norm one computed
     # here need not be the feasible one, so their impulse inequalities are not scored.
-    n_rows = np.sum(~sep, axis=-1) + np.sum(stick, axis=-1)
-    score = v_sq + np.where(n_rows <= nv, imp, 0.0)
-    score = np.broadcast_to(score, shape[:-1])
-    return np.asarray(score, dtype=np.float64)
+    n_rows = sum_last(~sep) + sum_last(stick)
+    return np.asarray(v_sq + np.where(n_rows <= nv, imp, 0.0), dtype=np.float64)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -597,7 +647,10 @@ def geometric_feasible(
     ok = np.ones(md.shape[:-1], dtype=bool)
     crowded, forbidden, pairs = _layout_rules(layout)
     for idx in crowded:
-        ok &= inc[..., list(idx)].sum(axis=-1) <= 2
+        n_in = inc[..., idx[0]].astype(np.int64)  # contacts in contact (slices: no gather)
+        for c in idx[1:]:
+            n_in += inc[..., c]
+        ok &= n_in <= 2
     for a, b in forbidden:
         ok &= ~(inc[..., a] & inc[..., b])
     if pairs:
@@ -653,17 +706,18 @@ def enumerate_hypotheses(
     sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
     live = sp >= threshold
     live[..., 0] = True
-    n_live = live.sum(axis=-1)  # (P, C)
+    n_live = sum_last(live)  # (P, C)
     radix = n_live.max(axis=0)  # (C,)
-    while int(np.prod(radix)) > max_tuples:
-        radix[int(np.argmax(radix))] -= 1
-    n_t = int(np.prod(radix))
-    ranks = _mixed_radix(tuple(int(r) for r in radix))
+    radix_t = radix.tolist()
+    while math.prod(radix_t) > max_tuples:
+        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    n_t = math.prod(radix_t)
+    ranks = _mixed_radix(tuple(radix_t))
     with np.errstate(divide="ignore"):
         lsp = np.log(sp)  # (P, C, 4)
     lsp = np.where(live, lsp, -np.inf)
     cidx = np.arange(n_c)
-    logp = lsp[:, cidx[None, :], ranks].sum(axis=-1)  # (P, T)
+    logp = sum_last(lsp[:, cidx[None, :], ranks])  # (P, T)
     pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
     if pre_k < n_t:
         sel = np.argpartition(-logp, pre_k - 1, axis=1)[:, :pre_k]
@@ -671,7 +725,7 @@ def enumerate_hypotheses(
         rk = ranks[sel]  # (P, T', C)
     else:  # all tuples
         logp_s = logp
-        rk = np.broadcast_to(ranks, (n_p, *ranks.shape))
+        rk = ranks  # broadcast against base_pc below
     # modes_s[p, t, c] = order[p, c, rk[p, t, c]] (flat gather)
     base_pc = (np.arange(n_p) * (n_c * N_MODES))[:, None, None] + np.arange(n_c) * N_MODES
     modes_s = order.take(base_pc + rk)  # (P, T', C)
@@ -690,11 +744,11 @@ def enumerate_hypotheses(
     m = logp_k[:, :1]
     m_safe = np.where(np.isfinite(m), m, 0.0)
     e = np.exp(logp_k - m_safe)
-    norm = e / np.maximum(e.sum(axis=1, keepdims=True), 1e-300)
+    norm = e / np.maximum(sum_last(e)[:, None], 1e-300)
     valid = np.isfinite(logp_k) & (norm >= threshold)
     valid[:, 0] = True
     # Trim trailing columns nobody uses.
-    k_used = max(1, int(valid.sum(axis=1).max()))
+    k_used = max(1, int(sum_last(valid).max()))
     modes_k = modes_k[:, :k_used]
     valid = valid[:, :k_used]
     logp_k = np.where(valid, logp_k[:, :k_used], -np.inf)

@@ -253,6 +253,7 @@ class _Layout:
     hs_idx: I64  # contact indices
     hs_r: F64  # (H, 2) body-frame point
     hs_n: F64  # (H, 2)
+    hs_t: F64  # (H, 2) tangent (n_y, -n_x)
     hs_off: F64  # (H,)
     hs_sign: F64  # (H,)
     hs_joint: I64  # (H,) joint index, -1 static
@@ -263,6 +264,8 @@ class _Layout:
     dk_jy: I64  # (D,)
     verts: F64  # (V, 2) body polygon (CCW) or empty
     perim0: F64  # (V,) arc length at each vertex
+    hs_sel: slice | I64  # hs_idx / dk_idx as a slice when consecutive (basic indexing)
+    dk_sel: slice | I64
 
 
 @lru_cache(maxsize=64)
@@ -284,20 +287,32 @@ def _layout(scenario: Scenario) -> _Layout:
     if len(verts):
         seg = np.linalg.norm(np.roll(verts, -1, 0) - verts, axis=1)
         perim0 = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    hs_idx = np.array([h[0] for h in hs], dtype=np.int64)
+    dk_idx = np.array([d[0] for d in dk], dtype=np.int64)
     return _Layout(
-        hs_idx=np.array([h[0] for h in hs], dtype=np.int64),
+        hs_idx=hs_idx,
         hs_r=np.array([h[1] for h in hs], dtype=np.float64).reshape(-1, 2),
         hs_n=np.array([h[2] for h in hs], dtype=np.float64).reshape(-1, 2),
+        hs_t=np.array([(h[2][1], -h[2][0]) for h in hs], dtype=np.float64).reshape(-1, 2),
         hs_off=np.array([h[3] for h in hs], dtype=np.float64),
         hs_sign=np.array([h[4] for h in hs], dtype=np.float64),
         hs_joint=np.array([h[5] for h in hs], dtype=np.int64),
-        dk_idx=np.array([d[0] for d in dk], dtype=np.int64),
+        dk_idx=dk_idx,
         dk_radius=np.array([d[1] for d in dk], dtype=np.float64),
         dk_jx=np.array([d[2] for d in dk], dtype=np.int64),
         dk_jy=np.array([d[3] for d in dk], dtype=np.int64),
         verts=verts,
         perim0=perim0,
+        hs_sel=_as_slice(hs_idx),
+        dk_sel=_as_slice(dk_idx),
     )
+
+
+def _as_slice(idx: I64) -> slice | I64:
+    """A consecutive ascending index array as a slice (basic instead of fancy indexing)."""
+    if idx.size and idx[-1] - idx[0] == idx.size - 1 and bool(np.all(np.diff(idx) == 1)):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
 
 
 def _joint_values(env: F64, jidx: NDArray[np.int64]) -> F64:
@@ -337,9 +352,9 @@ def contact_kinematics(
             )
             raise ModelError(msg)
     lead = np.broadcast_shapes(qa.shape[:-1], ea.shape[:-1], ev.shape[:-1])
-    qa = np.broadcast_to(qa, (*lead, nq))
-    ea = np.broadcast_to(ea, (*lead, n_env))
-    ev = np.broadcast_to(ev, (*lead, n_env))
+    if qa.shape[:-1] != lead:
+        qa = np.broadcast_to(qa, (*lead, nq))
+    # env / env_vel broadcast in the arithmetic and assignments below
     lay = _layout(scenario)
     n_c = scenario.n_contacts
     phi = np.empty((*lead, n_c))
@@ -354,28 +369,27 @@ def contact_kinematics(
     yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
 
     if len(lay.hs_idx):
-        idx = lay.hs_idx
+        idx = lay.hs_sel
         jidx = lay.hs_joint
-        r_w = rotate(yaw[..., None], lay.hs_r)  # (..., H, 2)
+        # a point mass (nq = 2) has no orientation: its contact points are its origin
+        r_w = rotate(yaw[..., None], lay.hs_r) if nq == 3 else lay.hs_r  # (..., H, 2)
         p = pos + r_w
         n = lay.hs_n
-        t = np.stack([n[:, 1], -n[:, 0]], -1)
+        t = lay.hs_t
         d = lay.hs_off + lay.hs_sign * _joint_values(ea, jidx)
-        phi[..., idx] = np.sum(p * n, -1) - d
-        jn[..., idx, 0] = n[:, 0]
-        jn[..., idx, 1] = n[:, 1]
-        jt[..., idx, 0] = t[:, 0]
-        jt[..., idx, 1] = t[:, 1]
+        phi[..., idx] = p[..., 0] * n[:, 0] + p[..., 1] * n[:, 1] - d  # = sum(p * n, -1) - d
+        jn[..., idx, :2] = n
+        jt[..., idx, :2] = t
         if nq == 3:
             jn[..., idx, 2] = cross2(r_w, n)
             jt[..., idx, 2] = cross2(r_w, t)
         vn_env[..., idx] = lay.hs_sign * _joint_values(ev, jidx)
         point[..., idx, :] = p
-        s[..., idx] = np.sum(p * t, -1)
-        normal[..., idx, :] = np.broadcast_to(n, p.shape)
+        s[..., idx] = p[..., 0] * t[:, 0] + p[..., 1] * t[:, 1]
+        normal[..., idx, :] = n
 
     if len(lay.dk_idx):
-        idx = lay.dk_idx
+        idx = lay.dk_sel
         jx = lay.dk_jx
         jy = lay.dk_jy
         centre = np.stack([ea[..., jx], ea[..., jy]], -1)  # (..., D, 2)
@@ -450,12 +464,12 @@ def contact_coordinates(scenario: Scenario, q: ArrayLike, env: ArrayLike | None 
             )
             raise ModelError(msg)
         lead = np.broadcast_shapes(lead, ea.shape[:-1])
-        qa = np.broadcast_to(qa, (*lead, nq))
+        if qa.shape[:-1] != lead:
+            qa = np.broadcast_to(qa, (*lead, nq))
     s = np.empty((*lead, scenario.n_contacts))
     if len(lay.hs_idx):
-        yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
-        p = qa[..., None, 0:2] + rotate(yaw[..., None], lay.hs_r)
-        n = lay.hs_n
-        t = np.stack([n[:, 1], -n[:, 0]], -1)
-        s[..., lay.hs_idx] = np.sum(p * t, -1)
+        r_w = rotate(qa[..., 2, None], lay.hs_r) if nq == 3 else lay.hs_r
+        p = qa[..., None, 0:2] + r_w
+        t = lay.hs_t
+        s[..., lay.hs_sel] = p[..., 0] * t[:, 0] + p[..., 1] * t[:, 1]
     return s

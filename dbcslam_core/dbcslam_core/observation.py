@@ -19,6 +19,7 @@ y_d the (wrapped) innovation. Unobserved dimensions keep the prior.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -107,8 +108,8 @@ class LinearObservation:
     def residual(self, q_obs: npt.ArrayLike) -> FloatArray:
         """Innovation o - q[..., index] (angular dims wrapped), shape (..., D)."""
         r = np.asarray(self.value - np.asarray(q_obs, dtype=np.float64), dtype=np.float64)
-        if self.angular.any():  # wrap the angular columns only (same values, less work)
-            r[..., self.angular] = wrap_angle(r[..., self.angular])
+        for k in np.flatnonzero(self.angular).tolist():  # wrap the angular columns only
+            r[..., k] = wrap_angle(r[..., k])
         return r
 
     def log_likelihood(self, q: npt.ArrayLike) -> FloatArray:
@@ -136,6 +137,15 @@ class PoseObservationModel:
         self.nq = nq
         self.std_position = float(std_position)
         self.std_yaw = float(std_yaw)
+        # constant parts of `linearize` for (x, y) and (x, y, yaw) readings (read-only)
+        self._const: dict[int, tuple[IntArray, FloatArray, BoolArray]] = {}
+        for n in (2, 3):
+            index = np.arange(n, dtype=np.int64)
+            var = np.asarray([self.std_position**2] * 2 + [self.std_yaw**2] * (n - 2))
+            angular = np.asarray([False, False, True][:n], dtype=np.bool_)
+            for a in (index, var, angular):
+                a.setflags(write=False)
+            self._const[n] = (index, var, angular)
 
     def linearize(self, obs: PoseObservation) -> LinearObservation:
         """The observation as o = q[index] + r (validates finiteness)."""
@@ -148,13 +158,9 @@ class PoseObservationModel:
         if not all(math.isfinite(v) for v in vals):
             msg = f"observation must be finite, got {obs}"
             raise ModelError(msg)
-        n = len(vals)
-        var = [self.std_position**2] * 2 + [self.std_yaw**2] * (n - 2)
+        index, var, angular = self._const[len(vals)]
         return LinearObservation(
-            index=np.arange(n, dtype=np.int64),
-            value=np.asarray(vals, dtype=np.float64),
-            var=np.asarray(var, dtype=np.float64),
-            angular=np.asarray([False, False, True][:n], dtype=np.bool_),
+            index=index, value=np.asarray(vals, dtype=np.float64), var=var, angular=angular
         )
 
 
@@ -286,6 +292,10 @@ class JointSmoother:
         self.pm = np.zeros((n_joints, 2, 2))
         self.nis = np.zeros(n_joints)
         self.initialised = False
+        # constant-velocity model: transition F and the process noise per unit q_a
+        self._f = np.array([[1.0, self.dt], [0.0, 1.0]])
+        dt = self.dt
+        self._q_unit = np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
 
     @property
     def velocity(self) -> FloatArray:
@@ -307,9 +317,8 @@ class JointSmoother:
     def _kf(
         self, x: FloatArray, p: FloatArray, q_a: float, pos: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        dt = self.dt
-        f = np.array([[1.0, dt], [0.0, 1.0]])
-        qm = q_a * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+        f = self._f
+        qm = q_a * self._q_unit
         x = x @ f.T
         p = f @ p @ f.T + qm
         s = p[:, 0, 0] + self.r
@@ -322,6 +331,8 @@ class JointSmoother:
     def update(self, position: npt.ArrayLike) -> FloatArray:
         """Predict one step dt and update with a reading; returns the smoothed positions."""
         pos = np.asarray(position, dtype=np.float64).reshape(self.n)
+        if self.n == 0 and self.initialised:  # no joints (static obstacles): nothing to do
+            return np.zeros(0)
         if self.r <= 0.0 or not self.initialised:
             return self.reset(pos)
         self.x, self.p, nis = self._kf(self.x, self.p, self.q_a, pos)
@@ -341,9 +352,15 @@ def _chol_entries(a: FloatArray) -> list[list[FloatArray]]:
     (...) arrays (structure of arrays: every operation is one vectorised op over the batch,
     no small-axis reductions; pivots clipped at 1e-300)."""
     n = a.shape[-1]
+    return _chol_of([[a[..., i, j] for j in range(i + 1)] for i in range(n)])
+
+
+def _chol_of(a: list[list[FloatArray]]) -> list[list[FloatArray]]:
+    """`_chol_entries` of a matrix given by its lower entries a[i][j] (j <= i), (...) each."""
+    n = len(a)
     low: list[list[FloatArray]] = [[] for _ in range(n)]
     for j in range(n):
-        d = a[..., j, j]
+        d = a[j][j]
         if j:
             s = low[j][0] * low[j][0]
             for k in range(1, j):
@@ -352,7 +369,7 @@ def _chol_entries(a: FloatArray) -> list[list[FloatArray]]:
         ljj = np.sqrt(np.maximum(d, 1e-300))
         low[j].append(ljj)
         for i in range(j + 1, n):
-            num = a[..., i, j]
+            num = a[i][j]
             if j:
                 s = low[i][0] * low[j][0]
                 for k in range(1, j):
@@ -467,30 +484,43 @@ def gaussian_proposal(
     nq = vh.shape[-1]
     sq = np.zeros(nq) if sigma_q is None else np.asarray(sigma_q, dtype=np.float64)
     lead = np.broadcast_shapes(qa.shape[:-1], vh.shape[:-1], sv.shape[:-2])
-    vh = np.broadcast_to(vh, (*lead, nq))
-    sv = np.broadcast_to(sv, (*lead, nq, nq))
-    innov = np.zeros((*lead, nq))
-    q_gain = np.zeros(nq)
-    q_std = sq.copy()
-    observed = np.zeros(nq, dtype=np.bool_)
+    if vh.shape[:-1] != lead:
+        vh = np.broadcast_to(vh, (*lead, nq))
+    if sv.shape[:-2] != lead:
+        sv = np.broadcast_to(sv, (*lead, nq, nq))
     if obs is None:
         return GaussianProposal(
-            np.zeros(lead), innov, vh.copy(), sv.copy(), q_gain, q_std, observed
+            np.zeros(lead),
+            np.zeros((*lead, nq)),
+            vh.copy(),
+            sv.copy(),
+            np.zeros(nq),
+            sq.copy(),
+            np.zeros(nq, dtype=np.bool_),
         )
     idx = obs.index
     n_d = idx.size
-    observed[idx] = True
-    every = n_d == nq and bool(np.all(idx == np.arange(nq)))  # all dims, in order: no gathers
+    every, observed, s_diag, q_gain, q_std = _observation_terms(
+        np.asarray(idx, dtype=np.int64).tobytes(), obs.var.tobytes(), sq.tobytes(), nq
+    )
+    if every:  # (vh has the full batch shape here)
+        log_pred, y, v_mean, v_cov = _proposal_all_observed(
+            qa, vh, sv, dt=dt, obs=obs, s_diag=s_diag
+        )
+        return GaussianProposal(log_pred, y, v_mean, v_cov, q_gain, q_std, observed)
     sv_o = sv if every else sv[..., idx, :][..., :, idx]
-    s_o = dt * dt * sv_o + np.diag(sq[idx] ** 2 + obs.var)
+    s_o = dt * dt * sv_o + s_diag
     pred = qa + dt * vh if every else qa[..., idx] + dt * vh[..., idx]
     y = obs.residual(pred)
     if every:
-        innov = np.asarray(np.broadcast_to(y, innov.shape), dtype=np.float64)
+        innov = y if y.shape == (*lead, nq) else np.broadcast_to(y, (*lead, nq))
     else:
+        innov = np.zeros((*lead, nq))
         innov[..., idx] = y
-    c = dt * (sv if every else sv[..., :, idx])  # cov(v', o) (..., nv, D)
-    rhs = np.concatenate([y[..., None], np.swapaxes(c, -1, -2)], axis=-1)  # (..., D, 1 + nv)
+    # rhs = [y, c^T] (..., D, 1 + nv), c = cov(v', o) = dt sv[:, idx] (..., nv, D)
+    rhs = np.empty((*lead, n_d, 1 + nq))
+    rhs[..., 0] = y
+    np.multiply(np.swapaxes(sv if every else sv[..., :, idx], -1, -2), dt, out=rhs[..., 1:])
     # S = L L^T: with Z = L^-1 [y, c^T], maha = |Z_y|^2 and c S^-1 [y, c^T] = Z_c^T Z
     low = _chol_entries(s_o)
     z = _forward_entries(low, rhs)  # D rows (..., 1 + nv)
@@ -499,13 +529,10 @@ def gaussian_proposal(
     cx = z[0][..., 1:, None] * z[0][..., None, :]  # (..., nv, 1 + nv)
     for i in range(1, n_d):
         maha = maha + z[i][..., 0] * z[i][..., 0]
-        cx = cx + z[i][..., 1:, None] * z[i][..., None, :]
+        cx += z[i][..., 1:, None] * z[i][..., None, :]
     log_pred = -0.5 * (maha + logdet + n_d * _LOG_2PI)
     v_mean = vh + cx[..., 0]
     v_cov = sv - cx[..., 1:]
-    r_q = sq[idx] ** 2 + obs.var
-    q_gain[idx] = sq[idx] ** 2 / r_q
-    q_std[idx] = np.sqrt(sq[idx] ** 2 * obs.var / r_q)
     return GaussianProposal(
         np.asarray(log_pred, dtype=np.float64),
         innov,
@@ -515,6 +542,80 @@ def gaussian_proposal(
         q_std,
         observed,
     )
+
+
+def _proposal_all_observed(
+    qa: FloatArray,
+    vh: FloatArray,
+    sv: FloatArray,
+    *,
+    dt: float,
+    obs: LinearObservation,
+    s_diag: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """`gaussian_proposal` (log_pred, innovation, v_mean, v_cov) when every dim is observed,
+    in order (the filter's case), entry by entry: the same operations as the general form
+    (same values) on the (...) batch arrays of each matrix entry, no ops on (..., n, n)
+    blocks, whose tiny inner axes make numpy iterate in runs of n elements."""
+    n = vh.shape[-1]
+    dt2 = dt * dt
+    y = obs.residual(qa + dt * vh)  # (..., n)
+    # S = dt^2 cov_v + diag(sq^2 + R) = L L^T (lower entries)
+    s_ent = [[dt2 * sv[..., i, j] + s_diag[i, j] for j in range(i + 1)] for i in range(n)]
+    low = _chol_of(s_ent)
+    # rows of Z = L^-1 [y, c^T], c = cov(v', o) = dt cov_v: row i = [y_i, dt cov_v[:, i]]
+    z: list[list[FloatArray]] = []
+    for i in range(n):
+        row = [y[..., i]] + [sv[..., v, i] * dt for v in range(n)]
+        if i:
+            for col in range(n + 1):
+                s = low[i][0] * z[0][col]
+                for k in range(1, i):
+                    s = s + low[i][k] * z[k][col]
+                row[col] = row[col] - s
+        z.append([r / low[i][i] for r in row])
+    maha = z[0][0] * z[0][0]
+    for i in range(1, n):
+        maha = maha + z[i][0] * z[i][0]
+    log_pred = -0.5 * (maha + _logdet_entries(low) + n * _LOG_2PI)
+    # c S^-1 [y, c^T] = Z_c^T Z: entry (a, b) = sum_i z_i[1 + a] z_i[b]
+    v_mean = np.empty(vh.shape)
+    v_cov = np.empty(sv.shape)
+    for a in range(n):
+        for b in range(n + 1):
+            cx = z[0][1 + a] * z[0][b]
+            for i in range(1, n):
+                cx += z[i][1 + a] * z[i][b]
+            if b == 0:
+                np.add(vh[..., a], cx, out=v_mean[..., a])
+            else:
+                np.subtract(sv[..., a, b - 1], cx, out=v_cov[..., a, b - 1])
+    return np.asarray(log_pred, dtype=np.float64), y, v_mean, v_cov
+
+
+@functools.lru_cache(maxsize=64)
+def _observation_terms(
+    idx_b: bytes, var_b: bytes, sq_b: bytes, nq: int
+) -> tuple[bool, BoolArray, FloatArray, FloatArray, FloatArray]:
+    """Terms of `gaussian_proposal` that depend only on the observation model (index, var)
+    and the position noise sq (cached, read-only; keys are the arrays' bytes): whether all
+    dims are observed in order, the observed mask, diag(sq^2 + var) over the observed dims,
+    and the position-noise posterior gain and std (nq,)."""
+    idx = np.frombuffer(idx_b, dtype=np.int64)
+    var = np.frombuffer(var_b, dtype=np.float64)
+    sq = np.frombuffer(sq_b, dtype=np.float64)
+    every = idx.size == nq and bool(np.all(idx == np.arange(nq)))  # all dims, in order
+    observed = np.zeros(nq, dtype=np.bool_)
+    observed[idx] = True
+    s_diag = np.diag(sq[idx] ** 2 + var)
+    r_q = sq[idx] ** 2 + var
+    q_gain = np.zeros(nq)
+    q_gain[idx] = sq[idx] ** 2 / r_q
+    q_std = sq.copy()
+    q_std[idx] = np.sqrt(sq[idx] ** 2 * var / r_q)
+    for a in (observed, s_diag, q_gain, q_std):
+        a.setflags(write=False)
+    return every, observed, s_diag, q_gain, q_std
 
 
 def sample_gaussian_proposal(
@@ -534,11 +635,15 @@ def sample_gaussian_proposal(
     vm = np.asarray(v_mean, dtype=np.float64)
     cov = np.asarray(v_cov, dtype=np.float64)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    scale = np.maximum(np.max(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), axis=-1), 1e-300)
-    jitter = 1e-12 * scale[..., None, None] * np.eye(vm.shape[-1])
-    low = _chol_entries(cov + jitter)
-    z = rng.standard_normal(vm.shape)
     n = vm.shape[-1]
+    diag = np.abs(np.diagonal(cov, axis1=-2, axis2=-1))
+    scale = diag[..., 0]
+    for i in range(1, n):  # max over the (short) diagonal
+        scale = np.maximum(scale, diag[..., i])
+    ar = np.arange(n)
+    cov[..., ar, ar] += 1e-12 * np.maximum(scale, 1e-300)[..., None]  # jitter on the diagonal
+    low = _chol_entries(cov)
+    z = rng.standard_normal(vm.shape)
     corr = np.stack(
         [
             sum((low[i][k] * z[..., k] for k in range(1, i + 1)), low[i][0] * z[..., 0])
@@ -560,12 +665,22 @@ def gaussian_log_density(x: npt.ArrayLike, cov: npt.ArrayLike) -> FloatArray:
     ca = np.asarray(cov, dtype=np.float64)
     lead = np.broadcast_shapes(xa.shape[:-1], ca.shape[:-2])
     n = xa.shape[-1]
-    xa = np.broadcast_to(xa, (*lead, n))
-    ca = np.broadcast_to(ca, (*lead, n, n))
+    if xa.shape[:-1] != lead:
+        xa = np.broadcast_to(xa, (*lead, n))
+    if ca.shape[:-2] != lead:
+        ca = np.broadcast_to(ca, (*lead, n, n))
     low = _chol_entries(ca)
-    z = _forward_entries(low, xa[..., None])  # rows of L^-1 x: x^T cov^-1 x = |L^-1 x|^2
-    maha = z[0][..., 0] * z[0][..., 0]
+    z: list[FloatArray] = []  # entries of L^-1 x (forward substitution): x^T cov^-1 x = |.|^2
+    for i in range(n):
+        acc = xa[..., i]
+        if i:
+            s = low[i][0] * z[0]
+            for k in range(1, i):
+                s = s + low[i][k] * z[k]
+            acc = acc - s
+        z.append(acc / low[i][i])
+    maha = z[0] * z[0]
     for i in range(1, n):
-        maha = maha + z[i][..., 0] * z[i][..., 0]
+        maha = maha + z[i] * z[i]
     out = -0.5 * (maha + _logdet_entries(low) + n * _LOG_2PI)
     return np.asarray(out, dtype=np.float64)

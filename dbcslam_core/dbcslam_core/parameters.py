@@ -19,12 +19,14 @@ posterior proportional to likelihood x predictive, in log space.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core.contact_modes import sum_last
 from dbcslam_core.errors import ModelError
 
 __all__ = [
@@ -73,8 +75,9 @@ def predict_parameters(
     else:
         msg = f"unknown parameter model {model!r}; valid models are {list(PARAMETER_MODELS)}"
         raise ModelError(msg)
-    out = np.broadcast_to(out, np.broadcast_shapes(out.shape, f.shape)).copy()
-    s = out.sum(axis=-1, keepdims=True)
+    if out.shape != f.shape:  # (out is a new array otherwise)
+        out = np.broadcast_to(out, np.broadcast_shapes(out.shape, f.shape)).copy()
+    s = sum_last(out)[..., None]
     return np.asarray(out / np.where(s > 0.0, s, 1.0), dtype=np.float64)
 
 
@@ -203,35 +206,59 @@ class FrictionMap:
         ok = np.isfinite(s_a) & (w_a > 0.0)
         if not ok.any():
             return
-        cells = self.cell_of(s_a[ok])
-        w_ok = w_a[ok]
+        sums, wsum = self.accumulate(s_a[ok], p_a[ok], w_a[ok])
+        self._sums[pair] += sums
+        self._weight[pair] += wsum
+
+    def accumulate(
+        self, s: FloatArray, probs: FloatArray, weight: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Per-cell sums of weight x probs (n_cells, K) and of weight (n_cells,) of N
+        observations s (N,) finite, probs (N, K), weight (N,) > 0: what `add` adds (no
+        validation; e.g. for `view(pending=...)`)."""
+        cells = self.cell_of(s)
         n = self.n_cells
-        wp = w_ok[:, None] * p_a[ok]
+        wp = weight[:, None] * probs
         n_k = wp.shape[1]
         # one bincount over (cell, candidate) bins (much faster than np.add.at; same order of
         # accumulation per bin as one bincount per candidate)
         bins = (cells[:, None] * n_k + np.arange(n_k)).reshape(-1)
-        self._sums[pair] += np.bincount(bins, weights=wp.reshape(-1), minlength=n * n_k).reshape(
-            n, n_k
-        )
-        self._weight[pair] += np.bincount(cells, weights=w_ok, minlength=n)
+        sums = np.bincount(bins, weights=wp.reshape(-1), minlength=n * n_k).reshape(n, n_k)
+        wsum = np.bincount(cells, weights=weight, minlength=n)
+        return np.asarray(sums, dtype=np.float64), np.asarray(wsum, dtype=np.float64)
 
     def posterior(self, pair: int) -> FloatArray:
         """(n_cells, K) per-cell posterior of pair `pair` (the prior in untouched cells)."""
-        w = self._weight[pair]
+        return self._posterior(pair, self._sums[pair], self._weight[pair])
+
+    def _posterior(self, pair: int, sums: FloatArray, w: FloatArray) -> FloatArray:
         post = np.where(
             w[:, None] > 0.0,
-            self._sums[pair] / np.where(w > 0.0, w, 1.0)[:, None],
+            sums / np.where(w > 0.0, w, 1.0)[:, None],
             self._priors[pair][None, :],
         )
-        return np.asarray(post / post.sum(axis=1, keepdims=True), dtype=np.float64)
+        return np.asarray(post / sum_last(post)[:, None], dtype=np.float64)
 
-    def view(self) -> FrictionMapView:
-        """Immutable snapshot."""
+    def view(
+        self, pending: Sequence[tuple[FloatArray, FloatArray] | None] | None = None
+    ) -> FrictionMapView:
+        """Immutable snapshot. pending: per pair None or (sums, weights) from `accumulate`
+        of observations not (yet) added: the snapshot includes them, the map is unchanged
+        (same values as a copy of the map with them added, without the copy)."""
+        probs: list[FloatArray] = []
+        weight: list[FloatArray] = []
+        for p in range(self.n_pairs):
+            extra = None if pending is None else pending[p]
+            if extra is None:
+                sums, w = self._sums[p], self._weight[p].copy()
+            else:
+                sums, w = self._sums[p] + extra[0], self._weight[p] + extra[1]
+            probs.append(self._posterior(p, sums, w))
+            weight.append(w)
         return FrictionMapView(
             s_min=self.s_min,
             cell_size=self.cell_size,
             n_cells=self.n_cells,
-            probs=tuple(self.posterior(p) for p in range(self.n_pairs)),
-            weight=tuple(w.copy() for w in self._weight),
+            probs=tuple(probs),
+            weight=tuple(weight),
         )

@@ -29,6 +29,7 @@ from dbcslam_core.contact_modes import (
     ViolationScales,
     enumerate_hypotheses,
     solve_reduced,
+    sum_last,
 )
 from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
@@ -307,6 +308,11 @@ class Estimate:
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
+    if a.ndim == 1 and axis in (0, -1):  # scalar result: the same ops on Python floats
+        m1 = float(a.max())
+        m1 = m1 if math.isfinite(m1) else 0.0
+        with np.errstate(divide="ignore"):
+            return np.asarray(np.log(np.exp(a - m1).sum()) + m1, dtype=np.float64)
     m = np.max(a, axis=axis, keepdims=True)
     m = np.where(np.isfinite(m), m, 0.0)
     with np.errstate(divide="ignore"):
@@ -440,7 +446,18 @@ class DbcSlamFilter:
         self.fric = np.tile(self._prior_b, (cfg.particles, 1))
         self.modes = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
         self.modes[..., Mode.SEPARATED] = 1.0
-        self._hist: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        # fixed-lag history for the friction map: ring buffer (map_lag + 1, P, W) of packed
+        # per-particle rows [fric_pair (pairs * Kmax) | s (C) | P(in contact) (C)], the oldest
+        # of the _hist_len entries at slot _hist_head
+        self._hist_width = self.n_pairs * self._k_max + 2 * self.n_c
+        self._hist_buf = np.zeros((cfg.map_lag + 1, cfg.particles, self._hist_width))
+        self._hist_head = 0
+        self._hist_len = 0
+        # contacts of each friction pair (None: all contacts belong to the pair)
+        self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
+            None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
+            for pr in range(self.n_pairs)
+        ]
 
     # ------------------------------------------------------------------ initialisation
     def initialize(
@@ -479,7 +496,8 @@ class DbcSlamFilter:
         at = np.einsum("pcv,pv->pc", kin.Jt, self.v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
         self.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
-        self._hist = []
+        self._hist_head = 0
+        self._hist_len = 0
         self._initialised = True
 
     def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
@@ -611,9 +629,11 @@ class DbcSlamFilter:
         modes_n = modes_k[pi, ki]  # (N, C)
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
-        pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
+        pred_full = pred
+        if pred.shape != (n_p, self.n_b, self.n_c, N_MODES):
+            pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
-            lp = np.log(pred_full.take(pbcm)).sum(axis=-1)  # (N, B)
+            lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
         sol = self._solve_entries(
             modes_n,
             v_free.take(pi, axis=0) if v_free_b is None else v_free_b.take(pi, axis=0),
@@ -678,7 +698,7 @@ class DbcSlamFilter:
         post_n = post[pi, ki]  # (N, B)
         num = np.bincount(
             pbcm.reshape(-1),
-            weights=np.broadcast_to(post_n[:, :, None], pbcm.shape).reshape(-1),
+            weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
         ).reshape(n_p, self.n_b, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
@@ -687,11 +707,14 @@ class DbcSlamFilter:
         in_c = modes_n != Mode.SEPARATED  # (N, C)
         p_n = post_n.sum(axis=1)  # (N,) posterior of each live entry
         pair_in = np.zeros((n_p, self.n_pairs))  # (P, pairs): P(pair in contact)
-        for pr in range(self.n_pairs):
-            sel = self._contact_pair == pr
-            if np.any(sel):
-                w_in = p_n * in_c[:, sel].any(axis=1)
-                pair_in[:, pr] = np.bincount(pi, weights=w_in, minlength=n_p)
+        for pr, mask in enumerate(self._pair_contacts):
+            if mask is None:  # all contacts belong to the pair
+                w_in = p_n * (sum_last(in_c) > 0)
+            elif mask.any():
+                w_in = p_n * in_c[:, mask].any(axis=1)
+            else:
+                continue
+            pair_in[:, pr] = np.bincount(pi, weights=w_in, minlength=n_p)
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
@@ -724,10 +747,9 @@ class DbcSlamFilter:
         w, _ = normalise_log_weights(self.log_w)
         # contact coordinate s at the end of the step for the map
         s_new = contact_coordinates(self.scenario, self.q, joints)
-        self._hist.append((fric_pair, s_new, p_contact))
-        if len(self._hist) > cfg.map_lag:
-            old = self._hist.pop(0)
-            self._commit(self.map, [old], w)
+        old = self._hist_push(fric_pair, s_new, p_contact)
+        if old is not None:
+            self._commit(self.map, old[None], w)
         ess = effective_sample_size(w)
         estimate_w = w
         resampled = False
@@ -737,12 +759,15 @@ class DbcSlamFilter:
             self.v = self.v[idx]
             self.fric = self.fric[idx]
             self.modes = self.modes[idx]
-            self._hist = [(h[0][idx], h[1][idx], h[2][idx]) for h in self._hist]
+            self._hist_buf = self._hist_buf.take(idx, axis=1)
             self.log_w = np.zeros(n_p)
             resampled = True
             # estimate with the pre-resampling weights (lower variance)
+        # the map snapshot uses the weights of the (resampled) particles, as friction_map()
+        map_w = normalise_log_weights(self.log_w)[0] if resampled else w
         return self._estimate(
             w=estimate_w,
+            map_w=map_w,
             q=q_new,
             v=v_new,
             marg_post=marg_post,
@@ -757,6 +782,13 @@ class DbcSlamFilter:
     @staticmethod
     def _lse(a: FloatArray, axis: int) -> FloatArray:
         """log sum exp over one axis, max-shifted (all -inf -> -inf); few numpy calls."""
+        if axis == a.ndim - 1 and a.shape[-1] < 8:  # short last axis: slice chains
+            m = a[..., 0].copy()
+            for i in range(1, a.shape[-1]):
+                np.maximum(m, a[..., i], out=m)
+            m[~np.isfinite(m)] = 0.0
+            with np.errstate(divide="ignore"):
+                return np.asarray(np.log(sum_last(np.exp(a - m[..., None]))) + m)
         m = a.max(axis=axis, keepdims=True)
         m[~np.isfinite(m)] = 0.0
         with np.errstate(divide="ignore"):
@@ -878,48 +910,100 @@ class DbcSlamFilter:
         if cfg.parameter_model == "reuse":
             return fric_post
         w = cfg.free_weight + (cfg.contact_weight - cfg.free_weight) * pair_in  # (P, pairs)
-        joint = np.ones_like(fric_post)
-        for p in range(self.n_pairs):
-            k = self._n_cand[p]
-            pr = predict_parameters(
-                fric_pair[:, p, :k], self._prior_pair[p], w[:, p], cfg.parameter_model
-            )
-            joint = joint * pr[:, self._beta[:, p]]
-        joint = joint / joint.sum(axis=1, keepdims=True)
+        # product over pairs of the pairs' predictive beliefs, per joint hypothesis (P, B)
+        factors = [
+            predict_parameters(
+                fric_pair[:, p, : self._n_cand[p]],
+                self._prior_pair[p],
+                w[:, p],
+                cfg.parameter_model,
+            )[:, self._beta[:, p]]
+            for p in range(self.n_pairs)
+        ]
+        joint = factors[0] if factors else np.ones_like(fric_post)
+        for f in factors[1:]:
+            joint = joint * f
+        joint = joint / sum_last(joint)[:, None]
         return np.asarray(joint, dtype=np.float64)
 
-    def _commit(
-        self,
-        fmap: FrictionMap,
-        entries: list[tuple[FloatArray, FloatArray, FloatArray]],
-        w: FloatArray,
-    ) -> None:
-        if not entries:
-            return
-        fp = np.concatenate([e[0] for e in entries], axis=0)  # (N, pairs, Kmax)
-        s = np.concatenate([e[1] for e in entries], axis=0)  # (N, C)
-        pc = np.concatenate([e[2] for e in entries], axis=0)  # (N, C)
-        weight = np.tile(w, len(entries))[:, None] * pc  # (N, C)
+    def _hist_push(
+        self, fric_pair: FloatArray, s: FloatArray, p_contact: FloatArray
+    ) -> FloatArray | None:
+        """Append one step to the map history; returns the entry (P, W) that leaves the lag
+        window (a view, valid until the next push) or None."""
+        cap = self._hist_buf.shape[0]
+        row = self._hist_buf[(self._hist_head + self._hist_len) % cap]
+        pk = self.n_pairs * self._k_max
+        row[:, :pk] = fric_pair.reshape(fric_pair.shape[0], pk)
+        row[:, pk : pk + self.n_c] = s
+        row[:, pk + self.n_c :] = p_contact
+        self._hist_len += 1
+        if self._hist_len <= self.config.map_lag:
+            return None
+        old: FloatArray = self._hist_buf[self._hist_head]
+        self._hist_head = (self._hist_head + 1) % cap
+        self._hist_len -= 1
+        return old
+
+    def _hist_entries(self) -> FloatArray:
+        """The uncommitted history (L, P, W), oldest first."""
+        cap = self._hist_buf.shape[0]
+        if self._hist_head + self._hist_len <= cap:
+            return self._hist_buf[self._hist_head : self._hist_head + self._hist_len]
+        order = (self._hist_head + np.arange(self._hist_len)) % cap
+        return self._hist_buf.take(order, axis=0)
+
+    def _map_observations(
+        self, entries: FloatArray, w: FloatArray
+    ) -> list[tuple[FloatArray, FloatArray, FloatArray] | None]:
+        """Friction-map observations of history entries (L, P, W) under particle weights w
+        (P,): per pair None or (s, probs (N, K_pair), weight) of the (entry, particle, contact
+        of the pair) triples with weight w x P(in contact) > 1e-9 and finite s."""
+        pk = self.n_pairs * self._k_max
+        n_c = self.n_c
+        fp = entries[..., :pk].reshape(-1, self.n_pairs, self._k_max)  # (L P, pairs, Kmax)
+        s = entries[..., pk : pk + n_c].reshape(-1, n_c)  # (L P, C)
+        weight = (w[:, None] * entries[..., pk + n_c :]).reshape(-1, n_c)  # (L P, C)
         keep = weight > 1e-9
+        out: list[tuple[FloatArray, FloatArray, FloatArray] | None] = []
         for pr in range(self.n_pairs):
-            sel = keep & (self._contact_pair == pr)[None, :]  # (N, C)
-            if not sel.any():
-                continue
+            mask = self._pair_contacts[pr]
+            sel = keep if mask is None else keep & mask[None, :]
             rows, cols = np.nonzero(sel)
-            k = self._n_cand[pr]
-            fmap.add(pr, s[rows, cols], fp[rows, pr, :k], weight[rows, cols])
+            s_sel = s[rows, cols]
+            fin = np.isfinite(s_sel)
+            if not fin.all():
+                rows, cols, s_sel = rows[fin], cols[fin], s_sel[fin]
+            if rows.size == 0:
+                out.append(None)
+                continue
+            out.append((s_sel, fp[rows, pr, : self._n_cand[pr]], weight[rows, cols]))
+        return out
+
+    def _commit(self, fmap: FrictionMap, entries: FloatArray, w: FloatArray) -> None:
+        """Add history entries (L, P, W) to the map under particle weights w (P,)."""
+        for pr, obs in enumerate(self._map_observations(entries, w)):
+            if obs is not None:
+                fmap.add(pr, *obs)
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
-        tmp = self.map.copy()
         w, _ = normalise_log_weights(self.log_w)
-        self._commit(tmp, self._hist, w)
-        return tmp.view()
+        return self._friction_map_view(w)
+
+    def _friction_map_view(self, w: FloatArray) -> FrictionMapView:
+        """`friction_map` with the normalised weights w of self.log_w given."""
+        if self._hist_len == 0:
+            return self.map.view()
+        obs = self._map_observations(self._hist_entries(), w)
+        pending = [None if o is None else self.map.accumulate(*o) for o in obs]
+        return self.map.view(pending)
 
     def _estimate(
         self,
         *,
         w: FloatArray,
+        map_w: FloatArray,
         q: FloatArray,
         v: FloatArray,
         marg_post: FloatArray,
@@ -956,7 +1040,7 @@ class DbcSlamFilter:
             twist_cov=twist_cov,
             modes=modes,
             friction=friction,
-            friction_map=self.friction_map(),
+            friction_map=self._friction_map_view(map_w),
             ess=ess,
             live_hypotheses=live,
             log_likelihood=log_ml,

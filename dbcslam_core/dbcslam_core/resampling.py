@@ -11,6 +11,7 @@ plus multinomial on the residuals), `multinomial` (i.i.d. draws).
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 import numpy as np
@@ -44,11 +45,11 @@ def normalise_log_weights(log_w: npt.ArrayLike) -> tuple[FloatArray, float]:
     if lw.ndim != 1 or lw.size == 0:
         msg = f"log weights must be a non-empty 1-D array, got shape {lw.shape}"
         raise ModelError(msg)
-    if np.isnan(lw).any():
+    m = float(lw.max())  # NaN if any entry is NaN
+    if math.isnan(m):
         msg = f"log weights contain NaN at indices {np.flatnonzero(np.isnan(lw))[:10].tolist()}"
         raise ModelError(msg)
-    m = float(np.max(lw))
-    if not np.isfinite(m):
+    if not math.isfinite(m):
         msg = f"log weights have no finite entry (max = {m}): every particle has zero weight"
         raise ModelError(msg)
     e = np.exp(lw - m)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core.contact_modes import N_MODES, Mode
+from dbcslam_core.contact_modes import N_MODES, Mode, sum_last
 from dbcslam_core.errors import ModelError
 
 __all__ = [
@@ -101,11 +101,17 @@ def soft_modes(
     p_stick = 1.0 / (1.0 + a * a)
     p_slide = 1.0 - p_stick
     direction = _sigmoid(10.0 * a)
-    inc = np.stack([p_stick, p_slide * direction, p_slide * (1.0 - direction)], axis=-1)
-    inc = np.maximum(inc, params.slide_floor)
-    inc = inc / inc.sum(axis=-1, keepdims=True)
-    out = np.concatenate([(1.0 - pc)[..., None], pc[..., None] * inc], axis=-1)
-    return np.asarray(out, dtype=np.float64)
+    shape = g.shape if g.shape == a.shape else np.broadcast_shapes(g.shape, a.shape)
+    out = np.empty((*shape, N_MODES))
+    inc = out[..., Mode.STICKING :]  # filled in place (no stack / concatenate)
+    inc[..., 0] = p_stick
+    np.multiply(p_slide, direction, out=inc[..., 1])
+    np.multiply(p_slide, 1.0 - direction, out=inc[..., 2])
+    np.maximum(inc, params.slide_floor, out=inc)
+    inc /= sum_last(inc)[..., None]
+    inc *= pc[..., None]
+    out[..., Mode.SEPARATED] = 1.0 - pc
+    return out
 
 
 def edge_consistency(
@@ -166,15 +172,27 @@ def mode_transition(
         raise ModelError(msg)
     rho = params.persistence
     pred = rho * prev + (1.0 - rho) * sf
+    # Below, per-mode slices (...) instead of (..., 4) blocks: numpy iterates the latter in
+    # runs of 3-4 elements (same operations, same values).
     if phi is not None and gap_rate_free is not None:
         g = np.asarray(phi, dtype=np.float64) + dt * np.asarray(gap_rate_free, dtype=np.float64)
         reach = _sigmoid(-(g - params.far_gap) / params.gap_scale)
-        reach = np.broadcast_to(reach[..., None], (*pred.shape[:-1], 1))
-        inc = pred[..., Mode.STICKING :]
-        moved = np.sum(inc * (1.0 - reach), axis=-1, keepdims=True)
-        pred = np.concatenate([pred[..., : Mode.STICKING] + moved, inc * reach], axis=-1)
-    s = pred.sum(axis=-1, keepdims=True)
-    return np.asarray(pred / np.maximum(s, 1e-300), dtype=np.float64)
+        lead = np.broadcast_shapes(pred.shape[:-1], reach.shape)
+        if pred.shape[:-1] != lead:
+            pred = np.array(np.broadcast_to(pred, (*lead, N_MODES)))
+        reach = np.ascontiguousarray(np.broadcast_to(reach, lead))
+        stay = 1.0 - reach
+        moved = pred[..., 1] * stay  # in-contact mass that cannot reach the obstacle
+        for m in range(2, N_MODES):
+            moved += pred[..., m] * stay
+        pred[..., Mode.SEPARATED] += moved
+        for m in range(1, N_MODES):
+            pred[..., m] *= reach
+    total = np.maximum(sum_last(pred), 1e-300)
+    out = np.empty(pred.shape)
+    for m in range(N_MODES):
+        np.divide(pred[..., m], total, out=out[..., m])
+    return out
 
 
 def contact_gap(
