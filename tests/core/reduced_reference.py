@@ -34,35 +34,10 @@ def solve_reduced_reference(
     mass: npt.ArrayLike | None = None,
     impulse_sensitivity: bool = False,
 ) -> ReducedSolution:
-    """Solve the reduced (mode-fixed) time-stepping dynamics for all assignments at once.
+    """The pre-optimisation `solve_reduced` (same arguments and result; see its docstring).
 
-    Shapes broadcast over any leading axes (...): modes (..., C) ints (Mode values);
-    v_free (..., nv) = v + dt M^-1 F (velocity without contact impulses, m/s);
-    inv_mass (..., nv) the diagonal of M^-1; jn, jt (..., C, nv) contact Jacobians;
-    phi (..., C) gaps (m); vn_env, vt_env (..., C) obstacle velocities (m/s);
-    mu (..., C) friction coefficient of each contact; dt step (s).
-
-    Equalities (Sec. III-A): separated ln = lt = 0; sticking gap_rate = 0 and vt = 0; sliding
-    gap_rate = 0 and lt = -/+ mu ln. The impulses solve a 2Ca x 2Ca system built from the
-    Delassus matrix W M^-1 W^T over the Ca contacts that are non-separated in some assignment
-    (np.linalg.solve, batched; no inverse). A relative Tikhonov term eps_rel on the velocity rows
-    keeps statically indeterminate assignments (more constraints than dofs) solvable: it only
-    changes impulses in the null space of W^T, which does not move v'.
-
-    mass (..., nv, nv) optional full (effective) mass matrix, e.g. M + dt K with the support
-    friction K of `PlanarModel.support_matrix` (push scenario): replaces the diagonal
-    `inv_mass` (solved, never inverted).
-
-    groups (C,) optional obstacle index per contact: the friction cone of sticking contacts on
-    the same flat obstacle is checked in aggregate, |sum lt| <= sum mu ln. Their tangential
-    rows coincide, so only the sum of their friction impulses is determined, and a split
-    inside every individual cone exists iff the aggregate holds (lt_i proportional to ln_i).
-    Assignments with more equality rows than velocity dofs are statically indeterminate: only
-    their velocity inequalities are scored (checking their impulse inequalities exactly would
-    need a feasibility LP over the null space of the impulses; not done).
-
-    impulse_sensitivity: also return d (ln, lt) / d v_free (`ReducedSolution.impulse_response`),
-    e.g. to propagate force process noise into a predicted contact force.
+    Padded 2Ca x 2Ca systems over the contacts non-separated in some assignment, one generic
+    batched solve per (assignment, friction) element: slow but simple, the test oracle.
     """
     sc = scales or ViolationScales()
     md = np.asarray(modes, dtype=np.int64)
