@@ -1,9 +1,17 @@
-"""Session-wide test settings: every test run talks on its own DDS domain, on loopback only."""
+"""Session-wide test settings: every test run talks on its own DDS domain, on loopback only;
+property tests are reproducible in CI."""
 
 from __future__ import annotations
 
 import os
 import random
 
+from hypothesis import settings
+
 # A random domain per test run so parallel runs (and a developer's live demo) never cross-talk.
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
+
+# Property tests: random exploration locally; in CI (`.ci/run` sets DBCSLAM_HYPOTHESIS_PROFILE=ci)
+# a fixed, reproducible set of examples per test, so a landing never depends on luck.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.load_profile(os.environ.get("DBCSLAM_HYPOTHESIS_PROFILE", "default"))

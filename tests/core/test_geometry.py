@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dbcslam_core.errors import ModelError
@@ -94,10 +94,13 @@ def test_gripper_kinematics_values(gripper: Scenario) -> None:
 
 
 def _fd_check(sc: Scenario, q: np.ndarray, env: np.ndarray, v: np.ndarray, ev: np.ndarray) -> None:
+    # central differences: near a vertex the gap is curved with radius ~ the distance (down to
+    # 0.1 mm here), where a one-sided difference would be off by h / (2 d) ~ 5e-4
     h = 1e-7
     k0 = contact_kinematics(sc, q, env, ev)
-    k1 = contact_kinematics(sc, q + h * v, env + h * ev, ev)
-    dphi = (k1.phi - k0.phi) / h
+    kp = contact_kinematics(sc, q + h * v, env + h * ev, ev)
+    km = contact_kinematics(sc, q - h * v, env - h * ev, ev)
+    dphi = (kp.phi - km.phi) / (2.0 * h)
     pred = np.einsum("ck,k->c", k0.Jn, v) - k0.vn_env
     assert np.allclose(dphi, pred, atol=2e-5 * (1 + np.abs(v).sum() + np.abs(ev).sum()))
 
@@ -116,6 +119,8 @@ def test_gripper_jacobian_matches_finite_differences(
 
 
 @settings(max_examples=80, deadline=None)
+# disk just outside a vertex, moving tangentially (one-sided differences failed here)
+@example(c=(0.041015625, 0.0), yaw=0.0, v=(0.0, 0.0, 0.0), ev=(0.0, 1.0))
 @given(
     c=st.tuples(st.floats(-0.08, 0.08), st.floats(-0.08, 0.08)),
     yaw=st.floats(-math.pi, math.pi),
