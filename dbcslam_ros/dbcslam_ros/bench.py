@@ -303,8 +303,8 @@ def reading_lines(result: dict[str, Any], target: float = 10.0) -> list[str]:
         )
         lines.append("- " + " ".join(parts))
     lines.append(
-        "- Per-step time of DBC-SLAM has a fixed part (a few hundred small numpy calls per "
-        "step) that dominates at 100 particles; the black boxes' Lemke cost is per particle."
+        "- Per-step time of DBC-SLAM has a fixed part (about a thousand small numpy operations "
+        "per step) that dominates at 100 particles; the black boxes' Lemke cost is per particle."
     )
     return lines
 

@@ -43,6 +43,7 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import sys
 import tempfile
 import time
@@ -88,6 +89,14 @@ TARGET_CONTACT_AGREEMENT = 0.9
 #: pins mu = 0.3, the median contact agreement drops from 0.788 to 0.702 and the yaw RMSE
 #: rises from 0.45 to 0.60 x noise (1.16 x on the pushes with F/T).
 SURFACE_CANDIDATES: tuple[float, ...] = (0.2, 0.3, 0.4, 0.5)
+
+
+def _portable(path: Path) -> str:
+    """`path` as written into reports: relative to the working directory (no machine paths)."""
+    try:
+        return os.path.relpath(Path(path).resolve(), Path.cwd())
+    except ValueError:  # another drive (Windows)
+        return str(path)
 
 
 @dataclass(frozen=True)
@@ -614,7 +623,7 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         summary: dict[str, Any] = {
             "settings": {
                 "command": command,
-                "data": str(opts.data),
+                "data": _portable(opts.data),
                 "pushes": len(pushes),
                 "particles": int(params.get("particles", opts.particles)),
                 "jobs": opts.jobs,
@@ -641,7 +650,7 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         if opts.figures:
             for shape in sorted({p["shape"] for p in pushes}):
                 rows = [p for p in pushes if p["shape"] == shape]
-                figures.append(str(_figure(shape, rows, out / f"mitpush_{shape}.png")))
+                figures.append(_figure(shape, rows, out / f"mitpush_{shape}.png").name)
         summary["figures"] = figures
         summary["settings"]["wall_s"] = round(time.perf_counter() - started, 1)
         summary["pushes"] = [

@@ -52,8 +52,9 @@ def test_writes_table_json_and_one_figure_per_shape(
     shapes = {"ellip1", "hex", "rect1"}
     assert {p["shape"] for p in on_disk["pushes"]} == shapes
     assert {Path(f).name for f in on_disk["figures"]} == {f"mitpush_{s}.png" for s in shapes}
+    assert not Path(on_disk["settings"]["data"]).is_absolute()  # no machine paths in reports
     for f in on_disk["figures"]:
-        assert Path(f).stat().st_size > 10_000
+        assert (table / f).stat().st_size > 10_000  # names relative to the table directory
     for name in (*shapes, "ft_flag", "overall"):
         assert f"| {name} |" in md
     assert "[3/3]" in progress and "contact agreement" in progress
