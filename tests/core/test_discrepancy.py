@@ -10,28 +10,21 @@ data without a hidden effect.
 
 from __future__ import annotations
 
-import dataclasses
 from functools import cache
 
 import numpy as np
 import pytest
+from edge_data import MU, single_mu_edge_scenario
 
 from dbcslam_core.discrepancy import DiscrepancyConfig, Run, analyse, smooth_states
 from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.extensions import ModelExtension
-from dbcslam_core.scenario import NoiseSpec, Scenario, edge_scenario
+from dbcslam_core.scenario import Scenario
 from dbcslam_core.synthetic import edge_trajectory, observe, simulate
-
-MU = 0.5
 
 
 def _scenario() -> Scenario:
-    sc = edge_scenario()
-    return dataclasses.replace(
-        sc,
-        noise=NoiseSpec(0.0005, 0.01, 0.0005),
-        friction=dataclasses.replace(sc.friction, candidates=((MU,),), prior=((1.0,),)),
-    )
+    return single_mu_edge_scenario(0.0005)
 
 
 @cache

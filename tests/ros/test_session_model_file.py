@@ -7,46 +7,29 @@ truth) with the model file of the discrepancy analysis than with the nominal mod
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
+from edge_data import hidden_effect_trajectory, single_mu_edge_scenario
 
-from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.rbpf import FilterConfig
-from dbcslam_core.scenario import NoiseSpec, Scenario, edge_scenario
-from dbcslam_core.synthetic import Trajectory, edge_trajectory, observe, simulate
+from dbcslam_core.scenario import Scenario
+from dbcslam_core.synthetic import Trajectory
 from dbcslam_ros.convert import PoseReading
 from dbcslam_ros.discrepancy_report import filter_tracking
 from dbcslam_ros.evaluate import load_bag_arrays, match_stamps
 from dbcslam_ros.replay import ReplayOptions, replay_bag, write_trajectory_bag
 from dbcslam_ros.session import FilterSession, observation_correction
 
-MU = 0.5
-
 
 def _scenario() -> Scenario:
-    sc = edge_scenario()
-    return dataclasses.replace(
-        sc,
-        noise=NoiseSpec(0.002, 0.01, 0.0005),
-        friction=dataclasses.replace(sc.friction, candidates=((MU,),), prior=((1.0,),)),
-    )
+    return single_mu_edge_scenario(0.002)
 
 
 def _trajectory(extensions: tuple[ModelExtension, ...], seed: int) -> Trajectory:
-    sc = _scenario()
-    base = edge_trajectory(0, duration=2.0)
-    model = PlanarModel(sc, (), active_set=True)
-    q, v, env, modes, ln, lt, mus = simulate(
-        model, (0.0, sc.edge_y + 0.1), (1.2, 0.0), base.u, base.env, mu=MU
-    )
-    obs, env_obs = observe(sc, q, env, np.random.default_rng(seed), extensions)
-    return Trajectory(
-        sc, base.t, q, v, base.u, env, modes, ln, lt, mus, np.array([MU]), obs, env_obs
-    )
+    return hidden_effect_trajectory(extensions, seed, duration=2.0, position_noise=0.002)
 
 
 def _model_file(path: Path, ext: ModelExtension) -> Path:
