@@ -61,6 +61,7 @@ from dbcslam_core.experiments import (
     TargetCheck,
     edge_targets,
     evaluate_targets,
+    representative_seed,
     run_dbcslam,
     run_filter,
     run_fixed_friction,
@@ -74,6 +75,7 @@ from dbcslam_core.synthetic import Trajectory
 from dbcslam_ros.experiments import (
     TABLE_METRICS,
     print_checks,
+    progress_printer,
     report_sections,
     utc_now,
     write_json,
@@ -211,9 +213,7 @@ class SimResults:
 
     def representative_seed(self, scenario: str) -> int:
         """The seed whose DBC-SLAM position RMSE is the (lower) median over seeds."""
-        recs = [r for r in self.records if r.scenario == scenario and r.method == DBCSLAM]
-        recs.sort(key=lambda r: r.metrics["position_rmse"])
-        return recs[(len(recs) - 1) // 2].seed
+        return representative_seed(self.records, scenario)
 
 
 # ------------------------------------------------------------------------------ one run
@@ -686,10 +686,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_list = list(sys.argv[1:] if argv is None else argv)
     command = " ".join(["python -m dbcslam_ros.experiments_sim", *argv_list])
 
-    def say(msg: str) -> None:
-        if not args.quiet:
-            print(msg, flush=True)
-
+    say = progress_printer(args.quiet)
     say(
         f"DBC-SLAM on pybullet: scenarios {list(scenarios)}, seeds 0..{args.seeds - 1}, "
         f"{args.particles} particles, {args.workers} worker(s) -> {args.out}"
