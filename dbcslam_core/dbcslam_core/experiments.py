@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -234,11 +234,15 @@ class ExperimentConfig:
             raise ModelError(msg)
 
 
-@dataclass
-class ExperimentResults:
-    """All records plus the traces (key: (scenario, seed, method))."""
+ConfigT = TypeVar("ConfigT")
 
-    config: ExperimentConfig
+
+@dataclass
+class ExperimentResults(Generic[ConfigT]):
+    """All records plus the traces (key: (scenario, seed, method)) of a run configured by
+    `config` (an `ExperimentConfig` here; the pybullet experiments use their own)."""
+
+    config: ConfigT
     records: list[RunRecord] = field(default_factory=list)
     traces: dict[tuple[str, int, str], RunTrace] = field(default_factory=dict)
 
@@ -645,11 +649,11 @@ def run_task(
 def run_experiments(
     config: ExperimentConfig | None = None,
     progress: Callable[[str], None] | None = None,
-) -> ExperimentResults:
+) -> ExperimentResults[ExperimentConfig]:
     """Run every (scenario, seed, method) of `config` on ``config.workers`` processes;
     `progress` receives one-line messages. Records are in task order."""
     cfg = config if config is not None else ExperimentConfig()
-    res = ExperimentResults(cfg)
+    res: ExperimentResults[ExperimentConfig] = ExperimentResults(cfg)
     say = progress if progress is not None else (lambda _msg: None)
     tasks = experiment_tasks(cfg)
     n_done = 0

@@ -189,7 +189,10 @@ def report_sections(
 
 
 def render_markdown(
-    results: ExperimentResults, checks: Sequence[TargetCheck], command: str, elapsed: float
+    results: ExperimentResults[ExperimentConfig],
+    checks: Sequence[TargetCheck],
+    command: str,
+    elapsed: float,
 ) -> str:
     """The Markdown report: targets, medians per (scenario, method), per-seed values."""
     cfg = results.config
@@ -302,7 +305,7 @@ def save_figures(
 
 
 def write_outputs(
-    results: ExperimentResults,
+    results: ExperimentResults[ExperimentConfig],
     out_dir: Path,
     command: str,
     elapsed: float,

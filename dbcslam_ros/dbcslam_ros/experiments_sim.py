@@ -55,13 +55,13 @@ from numpy.typing import NDArray
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.experiments import (
     DBCSLAM,
+    ExperimentResults,
     RunRecord,
     RunTrace,
     Target,
     TargetCheck,
     edge_targets,
     evaluate_targets,
-    representative_seed,
     run_dbcslam,
     run_filter,
     run_fixed_friction,
@@ -203,17 +203,8 @@ class SimExperimentConfig:
             raise ValueError(msg)
 
 
-@dataclass
-class SimResults:
-    """All records plus the traces (key: (scenario, seed, method))."""
-
-    config: SimExperimentConfig
-    records: list[RunRecord] = field(default_factory=list)
-    traces: dict[tuple[str, int, str], RunTrace] = field(default_factory=dict)
-
-    def representative_seed(self, scenario: str) -> int:
-        """The seed whose DBC-SLAM position RMSE is the (lower) median over seeds."""
-        return representative_seed(self.records, scenario)
+#: All records plus the traces of a pybullet experiment run.
+SimResults = ExperimentResults[SimExperimentConfig]
 
 
 # ------------------------------------------------------------------------------ one run
