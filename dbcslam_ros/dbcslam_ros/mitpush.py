@@ -74,6 +74,13 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core.errors import ModelError
+from dbcslam_core.mass_properties import (
+    MIT_PUSH_THICKNESS,
+    STAINLESS_STEEL_DENSITY,
+    PlateProperties,
+    plate_properties,
+)
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -85,6 +92,7 @@ __all__ = [
     "SHAPES",
     "STREAMS",
     "AlignmentCheck",
+    "Clock",
     "ImportConfig",
     "MitPushError",
     "Outline",
@@ -94,15 +102,22 @@ __all__ = [
     "ShapeAlignment",
     "ShapeFacts",
     "alignment_check",
+    "body_pose",
+    "common_clock",
+    "convex_hull",
     "expected_contact",
     "find_shapes_dir",
     "ft_is_stale",
     "geometric_contact",
     "load_outline",
     "load_push",
+    "mass_properties",
+    "outline_from_vertices",
     "parse_push_name",
     "push_files",
+    "read_shape_table",
     "resample_push",
+    "shape_names",
     "signed_distance",
     "to_body",
 ]
@@ -138,10 +153,13 @@ class ShapeAlignment:
 
     yaw_offset: body yaw - Vicon yaw, rad. offset: position (m) of the outline file's origin
     in the tracked frame (the tracked frame is not exactly at the outline's origin).
+    mirrored: the body frame is the x-mirrored outline file (a file point (x, y) lies at
+    R(yaw_offset) (-x, y) + offset in the tracked frame); else the file as it is.
     """
 
     yaw_offset: float
     offset: tuple[float, float] = (0.0, 0.0)
+    mirrored: bool = True
 
 
 @dataclass(frozen=True)
@@ -158,6 +176,44 @@ SHAPES: dict[str, ShapeFacts] = {
     "ellip3": ShapeFacts(1.3338, 2.973e-3),
     "hex": ShapeFacts(0.9827, 1.497e-3),
 }
+"""The dataset README's table (the four shapes of the training pushes): a reference the
+computed plate properties are checked against, no longer a list of allowed shapes. The
+importer reads the table of the dataset it imports (:func:`read_shape_table`)."""
+
+_TABLE_ROW = re.compile(
+    r"^\|\s*(?P<shape>[A-Za-z0-9]+)\s*\|[^|]*\|\s*(?P<mass>[0-9.eE+-]+)\s*\|"
+    r"\s*(?P<inertia>[0-9.eE+-]+)\s*\|\s*$"
+)
+
+
+def shape_names(shapes_dir: str | Path) -> list[str]:
+    """Shapes with an outline ``<shape>_ext.npy`` in ``shapes_dir`` (sorted; [] if none)."""
+    d = Path(shapes_dir)
+    if not d.is_dir():
+        return []
+    return sorted(p.name.removesuffix("_ext.npy") for p in d.glob("*_ext.npy"))
+
+
+def read_shape_table(readme: str | Path) -> dict[str, ShapeFacts]:
+    """Mass (kg) and I_z (kg m^2) per shape from the dataset README's facts table.
+
+    Rows ``| shape | size | mass | I_z |`` with numeric mass and inertia; {} when the file
+    does not exist or holds no such row.
+    """
+    try:
+        text = Path(readme).read_text(encoding="utf-8")
+    except OSError:
+        return {}
+    out: dict[str, ShapeFacts] = {}
+    for line in text.splitlines():
+        m = _TABLE_ROW.match(line.strip())
+        if m is None:
+            continue
+        try:
+            out[m["shape"]] = ShapeFacts(float(m["mass"]), float(m["inertia"]))
+        except ValueError:
+            continue
+    return out
 
 _HALF_PI = 0.5 * math.pi
 ALIGNMENTS: dict[str, ShapeAlignment] = {
@@ -166,7 +222,8 @@ ALIGNMENTS: dict[str, ShapeAlignment] = {
     "ellip3": ShapeAlignment(_HALF_PI - 0.0144, (-0.0005, -0.0015)),
     "hex": ShapeAlignment(_HALF_PI),
 }
-"""Per-shape alignment constants (see the module docstring for how they were measured)."""
+"""The hand-fitted per-shape constants of the first importer, kept as the reference the
+estimated alignment (:mod:`dbcslam_ros.mitpush_align`) is compared with; not used to import."""
 
 _NAME_RE = re.compile(
     r"motion_surface=(?P<surface>[A-Za-z0-9]+)_shape=(?P<shape>[A-Za-z0-9]+)"
@@ -192,8 +249,11 @@ class PushInfo:
 def parse_push_name(path: str | Path) -> PushInfo:
     """Parse ``motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T.h5`` (a in mm/s^2, v in mm/s).
 
+    Any shape name is accepted here; whether an outline exists for it is checked when the
+    outline is loaded (:func:`load_outline`).
+
     Raises:
-        MitPushError: the name does not follow the pattern or names an unknown shape.
+        MitPushError: the name does not follow the pattern.
     """
     p = Path(path)
     stem = p.name.removesuffix(".h5")
@@ -205,9 +265,6 @@ def parse_push_name(path: str | Path) -> PushInfo:
         )
         raise MitPushError(msg)
     shape = m["shape"]
-    if shape not in SHAPES:
-        msg = f"{p}: unknown shape {shape!r}; valid shapes are {sorted(SHAPES)}"
-        raise MitPushError(msg)
     try:
         side_f = float(m["i"])
         info = PushInfo(
@@ -299,15 +356,20 @@ class Outline:
     """Body-frame outline of a shape.
 
     vertices: strictly convex hull, counter-clockwise, about the centroid (m) - the
-    scenario's ``vertices``. ordered: every vertex of the file, x-mirrored (counter-clockwise,
-    file order) and shifted by the same centroid - used for the side/position convention of
+    scenario's ``vertices``. ordered: every vertex of the file, x-mirrored (file order:
+    counter-clockwise for the dataset's clockwise files) and shifted by the same centroid - used for the side/position convention of
     the file names. centroid: centroid (m) of the x-mirrored file outline in its own frame.
+    file_vertices: the outline as stored in the file (n, 2), m. mirrored: False when the body
+    frame is the file's outline itself (not x-mirrored; ``ordered`` then in file order,
+    clockwise or not as the file is, and ``centroid`` that of the file's outline).
     """
 
     shape: str
     vertices: FloatArray
     ordered: FloatArray
     centroid: tuple[float, float]
+    file_vertices: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    mirrored: bool = True
 
 
 def find_shapes_dir(h5_path: str | Path) -> Path | None:
@@ -319,7 +381,7 @@ def find_shapes_dir(h5_path: str | Path) -> Path | None:
     return None
 
 
-def _convex_hull(points: FloatArray) -> FloatArray:
+def convex_hull(points: FloatArray) -> FloatArray:
     """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
     pts = sorted({(float(x), float(y)) for x, y in points})
     scale = max(math.hypot(x, y) for x, y in pts)
@@ -351,13 +413,22 @@ def _area_centroid(v: FloatArray) -> tuple[float, float, float]:
     return area, cx, cy
 
 
-def load_outline(shape: str, shapes_dir: str | Path) -> Outline:
+def load_outline(shape: str, shapes_dir: str | Path, mirrored: bool = True) -> Outline:
     """Load ``<shapes_dir>/<shape>_ext.npy`` and express it in the body frame.
+
+    mirrored: body frame = the x-mirrored file outline (the convention the data selects for
+    every shape of the dataset, see :mod:`dbcslam_ros.mitpush_align`), else the file's.
 
     Raises:
         MitPushError: missing or malformed outline file.
     """
     path = Path(shapes_dir) / f"{shape}_ext.npy"
+    if not path.is_file():
+        known = ", ".join(shape_names(shapes_dir)) or "none"
+        msg = (
+            f"unknown shape {shape!r}: no outline {path} (outlines in {shapes_dir}: {known})"
+        )
+        raise MitPushError(msg)
     try:
         raw = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as err:
@@ -366,19 +437,31 @@ def load_outline(shape: str, shapes_dir: str | Path) -> Outline:
     if raw.ndim != 2 or raw.shape[1] != 2 or raw.shape[0] < 3 or not np.all(np.isfinite(raw)):
         msg = f"{path}: outline must be a finite (n >= 3, 2) array, got shape {raw.shape}"
         raise MitPushError(msg)
-    mirrored = np.asarray(raw, dtype=np.float64) * np.array([-1.0, 1.0])
-    area, cx, cy = _area_centroid(mirrored)
-    if area < 0.0:  # keep counter-clockwise whatever the file's winding
-        mirrored = mirrored[::-1]
-    if abs(area) <= 0.0:
-        msg = f"{path}: outline is degenerate (zero area)"
+    try:
+        return outline_from_vertices(shape, np.asarray(raw, dtype=np.float64), mirrored)
+    except MitPushError as err:
+        msg = f"{path}: {err}"
+        raise MitPushError(msg) from err
+
+
+def outline_from_vertices(shape: str, file_vertices: FloatArray, mirrored: bool) -> Outline:
+    """Body-frame :class:`Outline` of an outline file's vertices (n, 2), m.
+
+    Raises:
+        MitPushError: degenerate outline (zero area, fewer than 3 hull vertices).
+    """
+    v = np.asarray(file_vertices, dtype=np.float64)
+    body = v * np.array([-1.0, 1.0]) if mirrored else v.copy()
+    area, cx, cy = _area_centroid(body)
+    if not abs(area) > 0.0:
+        msg = f"outline of shape {shape!r} is degenerate (zero area)"
         raise MitPushError(msg)
-    hull = _convex_hull(mirrored)
+    hull = convex_hull(body)
     if len(hull) < 3:
-        msg = f"{path}: outline is degenerate (fewer than 3 hull vertices)"
+        msg = f"outline of shape {shape!r} is degenerate (fewer than 3 hull vertices)"
         raise MitPushError(msg)
     c = np.array([cx, cy])
-    return Outline(shape, hull - c, mirrored - c, (cx, cy))
+    return Outline(shape, hull - c, body - c, (cx, cy), v.copy(), mirrored)
 
 
 # ------------------------------------------------------------------------------- geometry
@@ -409,32 +492,24 @@ def expected_contact(
     """Pusher centre at first contact named by the file (side i, position s), body frame.
 
     Polygons (<= 8 vertices): the point at fraction s from body vertex i to vertex i + 1 of the
-    file's (mirrored, counter-clockwise) order; smooth outlines: the point at fraction s of the
+    file's order (x-mirrored unless ``outline.mirrored`` is False); smooth outlines: the point at fraction s of the
     perimeter from vertex 0. Returns (pusher centre = point + radius * outward normal, normal).
 
     Raises:
         MitPushError: side index out of range or position outside [0, 1].
     """
-    w = outline.ordered
-    n = len(w)
     if not 0.0 <= position <= 1.0:
         msg = f"contact position s={position} of shape {outline.shape} is outside [0, 1]"
         raise MitPushError(msg)
-    if n > 8:
-        seg = np.linalg.norm(np.roll(w, -1, axis=0) - w, axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(seg)])
-        target = position * cum[-1]
-        k = min(int(np.searchsorted(cum, target, side="right")) - 1, n - 1)
-        u = (target - cum[k]) / seg[k]
-    else:
-        if side >= n:
-            msg = f"side index i={side} out of range for shape {outline.shape} ({n} sides)"
-            raise MitPushError(msg)
-        k, u = side, position
-    a, b = w[k], w[(k + 1) % n]
-    e = b - a
-    normal = np.array([e[1], -e[0]]) / float(np.linalg.norm(e))
-    return a + u * e + radius * normal, normal
+    from dbcslam_ros.mitpush_align import named_contact
+
+    try:
+        bare = named_contact(outline.ordered, side, position, 0.0)
+        normal = named_contact(outline.ordered, side, position, 1.0) - bare
+    except MitPushError as err:
+        msg = f"shape {outline.shape}: {err}"
+        raise MitPushError(msg) from err
+    return bare + radius * normal, normal
 
 
 # ------------------------------------------------------------------------------- resampling
@@ -451,6 +526,9 @@ class ImportConfig:
     is added, m / rad: the alignment error (median 0.3-0.8 mm) dominates the Vicon noise; with
     1 mm / 0.01 rad ``dbcslam replay`` (100 particles) on the hex t=0.349 push rejects no
     pose, with 0.5 mm / 0.005 rad it rejects 17 of 105 as outliers (ESS 1.5).
+    density (kg/m^3) and thickness (m): the plate the mass and inertia are computed from
+    (:func:`mass_properties`). mass (kg) / inertia (kg m^2): given values instead (None:
+    computed; a mass alone scales the computed inertia with it).
     """
 
     dt: float = 0.01
@@ -463,8 +541,18 @@ class ImportConfig:
     position_floor: float = 0.001
     yaw_floor: float = 0.01
     joint_noise: float = JOINT_NOISE
+    density: float = STAINLESS_STEEL_DENSITY
+    thickness: float = MIT_PUSH_THICKNESS
+    mass: float | None = None
+    inertia: float | None = None
 
     def __post_init__(self) -> None:
+        for name in ("density", "thickness", "mass", "inertia"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0.0):
+                unit = {"density": "kg/m^3", "thickness": "m", "mass": "kg"}.get(name, "kg m^2")
+                msg = f"{name} must be a finite value > 0 ({unit}), got {v}"
+                raise MitPushError(msg)
         if not (math.isfinite(self.dt) and 0.0 < self.dt <= 0.1):
             msg = f"dt must be in (0, 0.1] s, got {self.dt}"
             raise MitPushError(msg)
@@ -488,6 +576,43 @@ class ImportConfig:
     def yaw_std(self) -> float:
         """Observation noise std of the yaw written to the scenario, rad."""
         return self.noise_yaw if self.noise_yaw > 0.0 else self.yaw_floor
+
+
+def mass_properties(outline: Outline, config: ImportConfig) -> tuple[float, float, str]:
+    """(mass kg, inertia about the centroid kg m^2, source) of a shape for the scenario.
+
+    Computed from the outline file as a uniform plate of ``config.density`` and
+    ``config.thickness`` (:func:`dbcslam_core.mass_properties.plate_properties`; the full
+    outline, not its convex hull), unless ``config.mass`` / ``config.inertia`` give them.
+    source: ``outline``, ``given`` or ``given mass, outline inertia``.
+
+    Raises:
+        MitPushError: the outline is degenerate.
+    """
+    try:
+        plate: PlateProperties = plate_properties(
+            outline.file_vertices if len(outline.file_vertices) else outline.vertices,
+            density=config.density,
+            thickness=config.thickness,
+        )
+    except ModelError as err:
+        msg = f"shape {outline.shape!r}: {err}"
+        raise MitPushError(msg) from err
+    mass, inertia = plate.mass, plate.inertia
+    if config.mass is not None:
+        inertia *= config.mass / mass
+        mass = config.mass
+    if config.inertia is not None:
+        inertia = config.inertia
+    if config.mass is None and config.inertia is None:
+        source = "outline"
+    elif config.mass is not None and config.inertia is not None:
+        source = "given"
+    elif config.mass is not None:
+        source = "given mass, outline inertia (scaled)"
+    else:
+        source = "outline mass, given inertia"
+    return mass, inertia, source
 
 
 @dataclass(frozen=True)
@@ -564,11 +689,33 @@ def _wrap(a: FloatArray) -> FloatArray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def resample_push(raw: RawPush, outline: Outline, config: ImportConfig) -> PushSeries:
-    """Resample a push onto one clock of step ``config.dt``, align it and add noise.
+@dataclass(frozen=True)
+class Clock:
+    """The streams of a push on one clock (the interval where all three have data).
 
-    Positions are interpolated linearly, yaw after unwrapping; the F/T force is averaged over
-    each step. The clock covers the interval where all three streams have data.
+    grid: (T,) seconds since the earliest stream's first stamp. stamps_ns: (T,) Unix time,
+    ns. tip: (T, 2) tip centre, world, m. vicon: (T, 3) tracked frame [x, y, yaw], yaw
+    unwrapped. t_ft: F/T stamps on the same time axis as grid, s. offsets: first stamp of
+    each stream minus the earliest one, s. dt: step, s.
+    """
+
+    grid: FloatArray
+    stamps_ns: npt.NDArray[np.int64]
+    tip: FloatArray
+    vicon: FloatArray
+    t_ft: FloatArray
+    offsets: dict[str, float]
+    dt: float
+
+    def force_mean(self, raw: RawPush) -> FloatArray:
+        """(T, 3) F/T reading [fx, fy, tau_z] averaged over each step (N, N m)."""
+        return _window_mean(self.t_ft, raw.ft[:, 1:], self.grid, self.dt)
+
+
+def common_clock(raw: RawPush, dt: float) -> Clock:
+    """Resample the tip and Vicon streams of a push onto one clock of step ``dt`` (s).
+
+    Positions are interpolated linearly, yaw after unwrapping.
 
     Raises:
         MitPushError: the streams do not overlap for at least two steps.
@@ -577,18 +724,17 @@ def resample_push(raw: RawPush, outline: Outline, config: ImportConfig) -> PushS
     tt, to, tf = (a[:, 0] - t_ref for a in (raw.tip, raw.obj, raw.ft))
     start = max(tt[0], to[0], tf[0])
     end = min(tt[-1], to[-1], tf[-1])
-    n_steps = math.floor((end - start) / config.dt + 1e-9) + 1
+    n_steps = math.floor((end - start) / dt + 1e-9) + 1
     if n_steps < 2:
         msg = (
             f"{raw.path}: the tip, object and F/T streams overlap for only "
-            f"{max(end - start, 0.0):.4f} s (needs at least 2 steps of {config.dt} s)"
+            f"{max(end - start, 0.0):.4f} s (needs at least 2 steps of {dt} s)"
         )
         raise MitPushError(msg)
-    grid = start + config.dt * np.arange(n_steps)
+    grid = start + dt * np.arange(n_steps)
     t0_ns = round((t_ref + start) * 1e9)
-    dt_ns = round(config.dt * 1e9)
+    dt_ns = round(dt * 1e9)
     stamps = t0_ns + dt_ns * np.arange(n_steps, dtype=np.int64)
-
     tip = np.stack([np.interp(grid, tt, raw.tip[:, j]) for j in (1, 2)], axis=-1)
     vic = np.stack(
         [
@@ -598,20 +744,55 @@ def resample_push(raw: RawPush, outline: Outline, config: ImportConfig) -> PushS
         ],
         axis=-1,
     )
-    align = ALIGNMENTS[raw.info.shape]
-    c, s = np.cos(vic[:, 2]), np.sin(vic[:, 2])
-    ox, oy = align.offset
-    yaw = vic[:, 2] + align.yaw_offset
+    offsets = {"tip_pose": float(tt[0]), "object_pose": float(to[0]), "ft_wrench": float(tf[0])}
+    return Clock(grid, stamps, tip, vic, tf, offsets, dt)
+
+
+def body_pose(vicon: FloatArray, alignment: ShapeAlignment, outline: Outline) -> FloatArray:
+    """Body pose (T, 3) [x, y, yaw] of the outline's centroid frame from the tracked frame."""
+    c, s = np.cos(vicon[:, 2]), np.sin(vicon[:, 2])
+    ox, oy = alignment.offset
+    yaw = vicon[:, 2] + alignment.yaw_offset
     cx, cy = outline.centroid
     cb, sb = np.cos(yaw), np.sin(yaw)
-    pose = np.stack(
+    return np.stack(
         [
-            vic[:, 0] + c * ox - s * oy + cb * cx - sb * cy,
-            vic[:, 1] + s * ox + c * oy + sb * cx + cb * cy,
+            vicon[:, 0] + c * ox - s * oy + cb * cx - sb * cy,
+            vicon[:, 1] + s * ox + c * oy + sb * cx + cb * cy,
             yaw,
         ],
         axis=-1,
     )
+
+
+def resample_push(
+    raw: RawPush,
+    outline: Outline,
+    config: ImportConfig,
+    alignment: ShapeAlignment | None = None,
+) -> PushSeries:
+    """Resample a push onto one clock of step ``config.dt``, align it and add noise.
+
+    Positions are interpolated linearly, yaw after unwrapping; the F/T force is averaged over
+    each step. The clock covers the interval where all three streams have data. alignment:
+    the outline's place in the tracked frame; None fits it over the push files of the same
+    shape in the file's directory (:func:`dbcslam_ros.mitpush_align.shape_alignment`). When the alignment's convention (mirrored or
+    not) differs from the outline's, the outline is rebuilt from its file vertices.
+
+    Raises:
+        MitPushError: the streams do not overlap for at least two steps.
+    """
+    clock = common_clock(raw, config.dt)
+    if alignment is None:
+        from dbcslam_ros.mitpush_align import shape_alignment
+
+        fit = shape_alignment(raw, outline.file_vertices, config.dt, config.contact_threshold)
+        alignment = fit.alignment
+    if alignment.mirrored != outline.mirrored:
+        outline = outline_from_vertices(outline.shape, outline.file_vertices, alignment.mirrored)
+    n_steps = len(clock.grid)
+    pose = body_pose(clock.vicon, alignment, outline)
+    tip = clock.tip
 
     rng = np.random.default_rng([config.seed, zlib.crc32(raw.path.name.encode("utf-8"))])
     noise = np.column_stack(
@@ -628,27 +809,22 @@ def resample_push(raw: RawPush, outline: Outline, config: ImportConfig) -> PushS
         contact = geometric_contact(pose, tip, outline, config.dt)
         source = "geometry"
     else:
-        force = _window_mean(tf, raw.ft[:, 1:], grid, config.dt)
+        force = clock.force_mean(raw)
         contact = np.hypot(force[:, 0], force[:, 1]) > config.contact_threshold
         source = "ft"
-    offsets = {
-        "tip_pose": float(tt[0]),
-        "object_pose": float(to[0]),
-        "ft_wrench": float(tf[0]),
-    }
     return PushSeries(
         raw=raw,
         outline=outline,
-        alignment=align,
+        alignment=alignment,
         dt=config.dt,
-        stamps_ns=stamps,
+        stamps_ns=clock.stamps_ns,
         tip=tip,
         pose=pose,
         observed=observed,
         force=force,
         contact=np.asarray(contact, dtype=np.bool_),
         contact_source=source,
-        start_offsets=offsets,
+        start_offsets=dict(clock.offsets),
     )
 
 

@@ -4,8 +4,9 @@ One bag per push file, named after the file (``DIR/<file stem>``). Every bag hol
 clock of step ``--dt`` (stamps = the data's Unix time in ns, log time = stamp):
 
 * ``/scenario`` (latched, first message): ``push`` scenario with the shape's outline (body
-  frame about the centroid, see :mod:`dbcslam_ros.mitpush` for the alignment), mass and
-  inertia from the dataset table, pusher radius 4.75 mm, dt, friction pairs ``pusher`` and
+  frame about the centroid; alignment estimated from the data, see
+  :mod:`dbcslam_ros.mitpush_align`), mass and inertia of a uniform plate cut to the outline
+  (:func:`dbcslam_ros.mitpush.mass_properties`), pusher radius 4.75 mm, dt, friction pairs ``pusher`` and
   ``surface`` with the candidate lists and uniform priors, observation noise std = the added
   noise (or the floor 1 mm / 0.01 rad when none is added), contacts ``[pusher]``.
 * ``/joint_states``: ``pusher_x``, ``pusher_y`` (tip centre, world, m).
@@ -26,7 +27,8 @@ clock of step ``--dt`` (stamps = the data's Unix time in ns, log time = stamp):
 
 Per step the messages are written in the order joints, wrenches, contact, pose, truth, all
 at the step's stamp. ``metadata.yaml`` ``custom_data`` records the source file, shape,
-alignment constants, dt, noise, seed and contact source.
+fitted alignment, mass properties (and the dataset table's where it has them), dt, noise,
+seed and contact source.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import math
 import shutil
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from dbcslam_ros.cli.registry import Command
 from dbcslam_ros.errors import UsageError
@@ -44,7 +46,8 @@ from dbcslam_ros.errors import UsageError
 if TYPE_CHECKING:
     from dbcslam_core.scenario import Scenario
     from dbcslam_ros.bag.metadata import BagMetadata
-    from dbcslam_ros.mitpush import ImportConfig, PushSeries
+    from dbcslam_ros.mitpush import AlignmentCheck, ImportConfig, PushSeries
+    from dbcslam_ros.mitpush_align import AlignmentFit
 
 __all__ = ["COMMAND", "CONTACT_TOPIC", "TOPICS", "make_scenario", "write_push_bag"]
 
@@ -65,25 +68,35 @@ _DESCRIPTION = """\
 Convert MIT MCube planar-pushing files (motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T.h5 with
 tip_pose, object_pose, ft_wrench) into bags of the DBC-SLAM contract, one bag per file under
 DIR (named after the file). H5 arguments may be files or directories (searched recursively
-for .h5). The streams are resampled onto one clock of step --dt (linear interpolation, yaw
-unwrapped, F/T averaged per step); the Vicon pose is aligned with the shape's outline (per-
-shape constants, see dbcslam_ros.mitpush); optional Gaussian noise is added to the observed
-pose (--noise-position, --noise-yaw, seeded by --seed and the file name) while
-/truth/object/pose keeps the clean pose.
+for .h5). Every shape with an outline <shape>_ext.npy in the dataset's shapes/ directory (the
+nearest 'shapes' directory above each file, or --shapes DIR) can be imported.
+
+The streams are resampled onto one clock of step --dt (linear interpolation, yaw unwrapped,
+F/T averaged per step). Mass and inertia about the centroid are those of a uniform plate cut
+to the outline (--density, --thickness; or --mass, --inertia). Frame alignment (where the
+outline lies in the Vicon-tracked frame: yaw, offset, mirrored or not) is estimated from the
+data: the pusher tip must touch the outline on in-contact steps and first touch it where the
+file name says, fitted (Huber loss, global search over yaw and both conventions) over every
+push file of the shape in the file's directory, so a file gets the same alignment whether it
+is imported alone or with the others (see dbcslam_ros.mitpush_align). The fit is printed per
+shape. Optional Gaussian noise is added to the observed pose (--noise-position, --noise-yaw,
+seeded by --seed and the file name) while /truth/object/pose keeps the clean pose.
 
 Topics: /scenario (latched), /joint_states (pusher_x, pusher_y), /object/pose,
 /truth/object/pose, /object/wrench (zero), /pusher/wrench (F/T, world axes; omitted when the
 file's F/T stream is stale), /pusher/contact (Float64MultiArray contacts x [separated,
 in_contact], one-hot: F/T magnitude > --contact-threshold, or geometric for stale F/T).
-The outlines are read from the dataset's shapes/ directory (the nearest 'shapes' directory
-above each file) unless --shapes is given.
 
 All files are read and checked before any bag is written: a bad file (unreadable HDF5,
-missing dataset, empty stream, wrong shape name) stops the import with exit code 2 naming
-the file. Existing bags are not overwritten without --overwrite."""
+missing dataset, empty stream, a shape without outline) stops the import with exit code 2
+naming the file. Existing bags are not overwritten without --overwrite."""
 
 _EXAMPLES = """\
   dbcslam import-mitpush /data/mit-push/abs/train -o bags/mitpush
+  dbcslam import-mitpush /data/mit-push/abs/train/motion_surface=abs_shape=butter_*.h5 \\
+      -o bags/butter                      # any shape with an outline in shapes/
+  dbcslam import-mitpush run.h5 -o out --mass 0.84 --inertia 1.13e-3   # measured values
+  dbcslam import-mitpush run.h5 -o out --density 2700 --thickness 0.01 # an aluminium plate
   dbcslam import-mitpush push1.h5 push2.h5 -o out --dt 0.004 --overwrite
   dbcslam import-mitpush /data/mit-push/abs/train -o bags/noisy \\
       --noise-position 0.002 --noise-yaw 0.02 --seed 7
@@ -117,13 +130,13 @@ def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
     import dataclasses
 
     from dbcslam_core.scenario import FrictionSpec, push_scenario
-    from dbcslam_ros.mitpush import PUSHER_RADIUS, SHAPES
+    from dbcslam_ros.mitpush import PUSHER_RADIUS, mass_properties
 
-    facts = SHAPES[series.raw.info.shape]
+    mass, inertia, _ = mass_properties(series.outline, config)
     base = push_scenario(
         [tuple(v) for v in series.outline.vertices.tolist()],
-        mass=facts.mass,
-        inertia=facts.inertia,
+        mass=mass,
+        inertia=inertia,
         dt=config.dt,
         pusher_radius=PUSHER_RADIUS,
         candidates=config.pusher_candidates,
@@ -142,8 +155,24 @@ def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
 
 
 def _custom_data(series: PushSeries, config: ImportConfig) -> dict[str, str]:
+    from dbcslam_ros.mitpush import find_shapes_dir, mass_properties, read_shape_table
+
     info = series.raw.info
-    return {
+    mass, inertia, source = mass_properties(series.outline, config)
+    extra = {
+        "mass_kg": repr(mass),
+        "inertia_kg_m2": repr(inertia),
+        "mass_source": source,
+        "density_kg_m3": repr(config.density),
+        "thickness_m": repr(config.thickness),
+        "alignment_mirrored": str(series.alignment.mirrored).lower(),
+    }
+    shapes_dir = find_shapes_dir(series.raw.path)
+    table = read_shape_table(shapes_dir.parent / "README.md") if shapes_dir else {}
+    if info.shape in table:
+        extra["table_mass_kg"] = repr(table[info.shape].mass)
+        extra["table_inertia_kg_m2"] = repr(table[info.shape].inertia)
+    return extra | {
         "source": "MIT MCube push dataset (Yu et al., IROS 2016)",
         "source_file": series.raw.path.name,
         "shape": info.shape,
@@ -245,17 +274,7 @@ def _wrap(angle: float) -> float:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dbcslam_ros.mitpush import (
-        ImportConfig,
-        MitPushError,
-        Outline,
-        alignment_check,
-        find_shapes_dir,
-        load_outline,
-        load_push,
-        push_files,
-        resample_push,
-    )
+    from dbcslam_ros.mitpush import ImportConfig, MitPushError, push_files
 
     try:
         config = ImportConfig(
@@ -266,6 +285,10 @@ def _run(args: argparse.Namespace) -> int:
             contact_threshold=args.contact_threshold,
             pusher_candidates=tuple(args.pusher_candidates),
             surface_candidates=tuple(args.surface_candidates),
+            density=args.density,
+            thickness=args.thickness,
+            mass=args.mass,
+            inertia=args.inertia,
         )
     except MitPushError as err:
         raise UsageError(str(err)) from err
@@ -281,26 +304,11 @@ def _run(args: argparse.Namespace) -> int:
         if (target.exists() or target.is_symlink()) and not args.overwrite:
             msg = f"{target}: already exists; not overwriting (pass --overwrite to replace)"
             raise UsageError(msg)
-    # Read and check every file before writing anything.
-    outlines: dict[tuple[str, Path], Outline] = {}
-    series_list = []
-    for f in files:
-        raw = load_push(f)
-        shapes_dir = Path(args.shapes) if args.shapes else find_shapes_dir(f)
-        if shapes_dir is None:
-            msg = (
-                f"{f}: no 'shapes' directory with the outline of {raw.info.shape!r} found "
-                "above the file; pass --shapes DIR"
-            )
-            raise MitPushError(msg)
-        key = (raw.info.shape, shapes_dir)
-        if key not in outlines:
-            outlines[key] = load_outline(raw.info.shape, shapes_dir)
-        series_list.append(resample_push(raw, outlines[key], config))
+    series_list = _read_all(files, args, config)
     total = len(files)
     for i, (series, target) in enumerate(zip(series_list, targets, strict=True), start=1):
         meta = write_push_bag(series, config, target, overwrite=args.overwrite)
-        check = alignment_check(series)
+        check = _alignment_check(series)
         print(
             f"[{i}/{total}] {series.raw.path.name} -> {target}: {len(series)} steps "
             f"({series.t[-1]:.2f} s), {meta.message_count} messages, contact "
@@ -310,6 +318,76 @@ def _run(args: argparse.Namespace) -> int:
         )
     print(f"imported {total} push file(s) into {out_dir}", file=sys.stderr)
     return 0
+
+
+def _alignment_check(series: PushSeries) -> AlignmentCheck:
+    from dbcslam_ros.mitpush import alignment_check
+
+    return alignment_check(series)
+
+
+def _read_all(files: list[Path], args: argparse.Namespace, config: ImportConfig) -> list[Any]:
+    """Read, align and resample every file before anything is written (progress on stderr)."""
+    from dbcslam_ros.mitpush import (
+        MitPushError,
+        Outline,
+        find_shapes_dir,
+        load_outline,
+        load_push,
+        mass_properties,
+        resample_push,
+    )
+    from dbcslam_ros.mitpush_align import AlignmentFit, shape_alignment
+
+    raws = [load_push(f) for f in files]
+    shapes = sorted({r.info.shape for r in raws})
+    if (args.mass is not None or args.inertia is not None) and len(shapes) > 1:
+        msg = (
+            f"--mass/--inertia describe one object, but the files hold {len(shapes)} shapes "
+            f"({', '.join(shapes)}); import each shape separately"
+        )
+        raise UsageError(msg)
+    outlines: dict[tuple[str, Path], Outline] = {}
+    fits: dict[tuple[str, Path, Path], AlignmentFit] = {}
+    series_list = []
+    for f, raw in zip(files, raws, strict=True):
+        shapes_dir = Path(args.shapes) if args.shapes else find_shapes_dir(f)
+        if shapes_dir is None:
+            msg = (
+                f"{f}: no 'shapes' directory with the outline of {raw.info.shape!r} found "
+                "above the file; pass --shapes DIR"
+            )
+            raise MitPushError(msg)
+        key = (raw.info.shape, shapes_dir)
+        if key not in outlines:
+            try:
+                outlines[key] = load_outline(raw.info.shape, shapes_dir)
+            except MitPushError as err:
+                msg = f"{f}: {err}"
+                raise MitPushError(msg) from err
+        fkey = (raw.info.shape, shapes_dir, f.parent)
+        if fkey not in fits:
+            fit = shape_alignment(
+                raw, outlines[key].file_vertices, config.dt, config.contact_threshold
+            )
+            fits[fkey] = fit
+            _report_fit(raw.info.shape, fit, *mass_properties(outlines[key], config))
+        series_list.append(resample_push(raw, outlines[key], config, fits[fkey].alignment))
+    return series_list
+
+
+def _report_fit(shape: str, fit: AlignmentFit, mass: float, inertia: float, source: str) -> None:
+    a = fit.alignment
+    onset = [e for e in fit.onset_errors if math.isfinite(e)]
+    first = f"{1e3 * sorted(onset)[len(onset) // 2]:.2f} mm" if onset else "n/a"
+    print(
+        f"{shape}: alignment fitted on {len(fit.names)} push file(s): "
+        f"{'mirrored' if a.mirrored else 'as stored'}, yaw {a.yaw_offset:+.4f} rad, offset "
+        f"({1e3 * a.offset[0]:+.2f}, {1e3 * a.offset[1]:+.2f}) mm; median |gap| "
+        f"{1e3 * fit.median_gap:.2f} mm, first contact off by {first} (median); "
+        f"mass {mass:.4f} kg, inertia {inertia:.4e} kg m^2 ({source})",
+        file=sys.stderr,
+    )
 
 
 def _configure(parser: argparse.ArgumentParser) -> None:
@@ -368,6 +446,39 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "--shapes",
         metavar="DIR",
         help="directory with <shape>_ext.npy outlines (default: the dataset's shapes/)",
+    )
+    plate = parser.add_argument_group(
+        "mass properties (default: a uniform stainless-steel plate cut to the outline)"
+    )
+    plate.add_argument(
+        "--density",
+        type=_positive_float,
+        default=7950.0,
+        metavar="KG_M3",
+        help="plate density, kg/m^3 (default 7950, stainless steel; fits the dataset's "
+        "four tabulated masses within 0.33%%)",
+    )
+    plate.add_argument(
+        "--thickness",
+        type=_positive_float,
+        default=0.013,
+        metavar="M",
+        help="plate thickness, m (default 0.013, the dataset's objects)",
+    )
+    plate.add_argument(
+        "--mass",
+        type=_positive_float,
+        default=None,
+        metavar="KG",
+        help="object mass, kg, instead of the computed one (the computed inertia is scaled "
+        "with it unless --inertia is given; files of one shape only)",
+    )
+    plate.add_argument(
+        "--inertia",
+        type=_positive_float,
+        default=None,
+        metavar="KG_M2",
+        help="polar inertia about the centroid, kg m^2, instead of the computed one",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
 
