@@ -58,6 +58,7 @@ __all__ = [
     "MAX_POINTS",
     "ONSET_MAX_ANGLE",
     "ONSET_WEIGHT",
+    "OFFSET_PRIOR_STD",
     "AlignmentFit",
     "PushEvidence",
     "fit_alignment",
@@ -77,6 +78,8 @@ ONSET_WEIGHT: float = 40.0
 """Weight of the first-contact residual, in contact steps (a third of a file's MAX_POINTS)."""
 ONSET_MAX_ANGLE: float = 1.2
 """rad: pushes steeper than this (|t|) get no first-contact term."""
+OFFSET_PRIOR_STD: float = 0.005
+"""m: prior std of the outline file's origin in the tracked frame (per axis, about 0)."""
 _N_YAW = 72
 _N_REFINE = 3
 _MIRROR = np.array([-1.0, 1.0])
@@ -221,7 +224,8 @@ class _Problem:
     def residuals(self, x: FloatArray, mirrored: bool) -> FloatArray:
         gap = mp.signed_distance(self.hull, _to_file(self.points, x, mirrored)) - self.radius
         onset = (_to_tracked(self.expected, x, mirrored) - self.onsets) * self.onset_scale
-        return np.concatenate([gap, onset.ravel()])
+        prior = x[1:3] * (HUBER_SCALE / OFFSET_PRIOR_STD)
+        return np.concatenate([gap, onset.ravel(), prior])
 
     def start_offset(self, yaw: float, mirrored: bool) -> FloatArray:
         """Offset putting the named first contacts on the measured ones (median), m."""
