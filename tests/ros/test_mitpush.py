@@ -98,8 +98,9 @@ def test_one_bag_per_file_with_every_topic(
         assert scenario.friction.pairs == ("pusher", "surface")
         assert scenario.friction.candidates == ((0.1, 0.2, 0.3), (0.1, 0.2, 0.3))
         assert scenario.pusher_radius == pytest.approx(0.00475)
-        assert scenario.body.mass == pytest.approx(mp.SHAPES[info.shape].mass)
-        assert scenario.body.inertia == pytest.approx(mp.SHAPES[info.shape].inertia)
+        # A steel plate cut to the outline: within 0.4 % / 0.8 % of the dataset's table.
+        assert scenario.body.mass == pytest.approx(mp.SHAPES[info.shape].mass, rel=0.004)
+        assert scenario.body.inertia == pytest.approx(mp.SHAPES[info.shape].inertia, rel=0.008)
         assert scenario.dt == pytest.approx(0.01)
         joints = topics["/joint_states"][0][1]
         assert list(joints.name) == ["pusher_x", "pusher_y"]
@@ -157,13 +158,11 @@ def test_alignment_puts_pusher_on_outline_at_first_contact(path: Path) -> None:
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: mp.parse_push_name(p).shape)
-def test_without_yaw_offset_the_contact_is_elsewhere(
-    path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_without_yaw_offset_the_contact_is_elsewhere(path: Path) -> None:
     raw = mp.load_push(path)
-    monkeypatch.setitem(mp.ALIGNMENTS, raw.info.shape, mp.ShapeAlignment(0.0))
     outline = mp.load_outline(raw.info.shape, DATA / "shapes")
-    check = mp.alignment_check(mp.resample_push(raw, outline, mp.ImportConfig()))
+    series = mp.resample_push(raw, outline, mp.ImportConfig(), mp.ShapeAlignment(0.0))
+    check = mp.alignment_check(series)
     assert check.onset_error > 0.01
 
 
@@ -327,7 +326,7 @@ def test_resampling_unwraps_yaw_and_interpolates(syn_dir: Path) -> None:
     path = _write_h5(syn_dir / "train" / SYN_NAME, **_synthetic())
     raw = mp.load_push(path)
     outline = mp.load_outline("hex", mp.find_shapes_dir(path) or syn_dir)
-    series = mp.resample_push(raw, outline, mp.ImportConfig(dt=0.01))
+    series = mp.resample_push(raw, outline, mp.ImportConfig(dt=0.01), mp.ALIGNMENTS["hex"])
     t = series.stamps_ns * 1e-9 - 1.5e9
     assert t[0] == pytest.approx(0.002, abs=1e-6)  # common interval starts with the F/T
     yaw_v = np.pi - 0.5 + t
