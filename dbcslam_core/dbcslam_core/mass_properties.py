@@ -13,8 +13,8 @@ mass, the only one planar pushing needs) follow from the outline alone:
 
 The formulas are exact for the polygon; a smooth outline sampled as a polygon loses the
 slivers between its vertices (ellip1, 61 vertices: area -0.46 % of the 105 mm disc, whose
-exact mass at 7950 kg/m^3 would be +0.13 % off the table instead of -0.33 %). Units are SI throughout:
-density kg/m^3, thickness m. Pure numpy; the polygon algebra is the core's
+exact mass at 7950 kg/m^3 would be +0.13 % off the table instead of -0.33 %). Units are SI
+throughout: density kg/m^3, thickness m. Pure numpy; the polygon algebra is the core's
 (:mod:`dbcslam_core.geometry`).
 
 Checked against the dataset's table (``tests/core/test_mass_properties.py``): with

@@ -215,6 +215,7 @@ def read_shape_table(readme: str | Path) -> dict[str, ShapeFacts]:
             continue
     return out
 
+
 _HALF_PI = 0.5 * math.pi
 ALIGNMENTS: dict[str, ShapeAlignment] = {
     "rect1": ShapeAlignment(_HALF_PI),
@@ -357,8 +358,9 @@ class Outline:
 
     vertices: strictly convex hull, counter-clockwise, about the centroid (m) - the
     scenario's ``vertices``. ordered: every vertex of the file, x-mirrored (file order:
-    counter-clockwise for the dataset's clockwise files) and shifted by the same centroid - used for the side/position convention of
-    the file names. centroid: centroid (m) of the x-mirrored file outline in its own frame.
+    counter-clockwise for the dataset's clockwise files) and shifted by the same centroid -
+    used for the side/position convention of the file names. centroid: centroid (m) of the
+    x-mirrored file outline in its own frame.
     file_vertices: the outline as stored in the file (n, 2), m. mirrored: False when the body
     frame is the file's outline itself (not x-mirrored; ``ordered`` then in file order,
     clockwise or not as the file is, and ``centroid`` that of the file's outline).
@@ -425,9 +427,7 @@ def load_outline(shape: str, shapes_dir: str | Path, mirrored: bool = True) -> O
     path = Path(shapes_dir) / f"{shape}_ext.npy"
     if not path.is_file():
         known = ", ".join(shape_names(shapes_dir)) or "none"
-        msg = (
-            f"unknown shape {shape!r}: no outline {path} (outlines in {shapes_dir}: {known})"
-        )
+        msg = f"unknown shape {shape!r}: no outline {path} (outlines in {shapes_dir}: {known})"
         raise MitPushError(msg)
     try:
         raw = np.load(path, allow_pickle=False)
@@ -492,8 +492,9 @@ def expected_contact(
     """Pusher centre at first contact named by the file (side i, position s), body frame.
 
     Polygons (<= 8 vertices): the point at fraction s from body vertex i to vertex i + 1 of the
-    file's order (x-mirrored unless ``outline.mirrored`` is False); smooth outlines: the point at fraction s of the
-    perimeter from vertex 0. Returns (pusher centre = point + radius * outward normal, normal).
+    file's order (x-mirrored unless ``outline.mirrored`` is False); smooth outlines: the point
+    at fraction s of the perimeter from vertex 0. Returns (pusher centre = point + radius *
+    outward normal, normal).
 
     Raises:
         MitPushError: side index out of range or position outside [0, 1].
@@ -776,8 +777,9 @@ def resample_push(
     Positions are interpolated linearly, yaw after unwrapping; the F/T force is averaged over
     each step. The clock covers the interval where all three streams have data. alignment:
     the outline's place in the tracked frame; None fits it over the push files of the same
-    shape in the file's directory (:func:`dbcslam_ros.mitpush_align.shape_alignment`). When the alignment's convention (mirrored or
-    not) differs from the outline's, the outline is rebuilt from its file vertices.
+    shape in the file's directory (:func:`dbcslam_ros.mitpush_align.shape_alignment`). When
+    the alignment's convention (mirrored or not) differs from the outline's, the outline is
+    rebuilt from its file vertices.
 
     Raises:
         MitPushError: the streams do not overlap for at least two steps.

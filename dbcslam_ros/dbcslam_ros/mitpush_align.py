@@ -34,7 +34,8 @@ tracked frame's origin (std :data:`OFFSET_PRIOR_STD` = 5 mm per axis; the pooled
 four training shapes put it within 1.5 mm): it only matters where the data leave the offset
 free. The convention with the smaller robust cost wins (the stored one must be
 :data:`MIRROR_MARGIN` = 5 % better, so that a symmetric outline seen by a single push keeps
-the dataset's mirrored convention); both costs are reported. Deterministic (fixed grid, no random starts); ~0.1-0.3 s per shape.
+the dataset's mirrored convention); both costs are reported. Deterministic (fixed grid, no
+random starts).
 
 **Pooled per shape and recording set.** One push constrains its alignment poorly (a push
 that sticks to a flat side sees one point of the outline, a circle none of its yaw, a push at
@@ -60,10 +61,10 @@ from dbcslam_ros import mitpush as mp
 __all__ = [
     "HUBER_SCALE",
     "MAX_POINTS",
-    "ONSET_MAX_ANGLE",
     "MIRROR_MARGIN",
-    "ONSET_WEIGHT",
     "OFFSET_PRIOR_STD",
+    "ONSET_MAX_ANGLE",
+    "ONSET_WEIGHT",
     "AlignmentFit",
     "PushEvidence",
     "fit_alignment",

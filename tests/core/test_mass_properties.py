@@ -1,4 +1,4 @@
-"""Plate mass properties (dbcslam_core.mass_properties): exact shapes, invariances, the MIT table."""
+"""Plate mass properties (dbcslam_core.mass_properties): exact shapes, invariance, MIT table."""
 
 from __future__ import annotations
 
@@ -62,7 +62,9 @@ def test_invariant_under_rigid_motion_and_winding(
     v = np.array(pts)
     ang = np.arctan2(*(v - v.mean(axis=0)).T[::-1])
     v = v[np.argsort(ang)]
-    area = 0.5 * abs(float(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])))
+    area = 0.5 * abs(
+        float(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1]))
+    )
     if area < 1e-5:
         return
     p = plate_properties(v)

@@ -538,7 +538,7 @@ def _boundary(hull: np.ndarray, start: np.ndarray, arc: np.ndarray) -> np.ndarra
     return hull[j] + w[:, None] * e[j] + mp.PUSHER_RADIUS * normal
 
 
-def _map(points: np.ndarray, yaw: float, offset: tuple[float, float], mirrored: bool):  # noqa: ANN202
+def _map(points: np.ndarray, yaw: float, offset: tuple[float, float], mirrored: bool):
     q = points * np.array([-1.0, 1.0]) if mirrored else points
     c, s = math.cos(yaw), math.sin(yaw)
     return q @ np.array([[c, s], [-s, c]]) + np.array(offset)
@@ -563,14 +563,20 @@ def _synthetic_push(
     tc = 0.4
     hull = mp.convex_hull(_map(vertices, truth.yaw_offset, truth.offset, truth.mirrored))
     contact = _map(
-        named_contact(vertices, side, position)[None], truth.yaw_offset, truth.offset, truth.mirrored
-    )[0]
-    outward = contact - _map(
-        named_contact(vertices, side, position, 0.0)[None],
+        named_contact(vertices, side, position)[None],
         truth.yaw_offset,
         truth.offset,
         truth.mirrored,
     )[0]
+    outward = (
+        contact
+        - _map(
+            named_contact(vertices, side, position, 0.0)[None],
+            truth.yaw_offset,
+            truth.offset,
+            truth.mirrored,
+        )[0]
+    )
     outward /= np.linalg.norm(outward)
     after = np.clip(t - tc, 0.0, None)
     tip_tracked = _boundary(hull, contact, slide * after / after[-1])
@@ -615,7 +621,7 @@ def _hausdorff(a: np.ndarray, b: np.ndarray) -> float:
 CASES = [(s, True) for s in ALL_SHAPES] + [(s, False) for s in ("tri2", "butter", "rect2")]
 
 
-@pytest.mark.parametrize(("shape", "mirrored"), CASES, ids=lambda v: str(v))
+@pytest.mark.parametrize(("shape", "mirrored"), CASES, ids=str)
 def test_alignment_is_recovered_for_every_shape(
     shape: str, mirrored: bool, tmp_path: Path
 ) -> None:

@@ -6,9 +6,10 @@ clock of step ``--dt`` (stamps = the data's Unix time in ns, log time = stamp):
 * ``/scenario`` (latched, first message): ``push`` scenario with the shape's outline (body
   frame about the centroid; alignment estimated from the data, see
   :mod:`dbcslam_ros.mitpush_align`), mass and inertia of a uniform plate cut to the outline
-  (:func:`dbcslam_ros.mitpush.mass_properties`), pusher radius 4.75 mm, dt, friction pairs ``pusher`` and
-  ``surface`` with the candidate lists and uniform priors, observation noise std = the added
-  noise (or the floor 1 mm / 0.01 rad when none is added), contacts ``[pusher]``.
+  (:func:`dbcslam_ros.mitpush.mass_properties`), pusher radius 4.75 mm, dt, friction pairs
+  ``pusher`` and ``surface`` with the candidate lists and uniform priors, observation noise
+  std = the added noise (or the floor 1 mm / 0.01 rad when none is added), contacts
+  ``[pusher]``.
 * ``/joint_states``: ``pusher_x``, ``pusher_y`` (tip centre, world, m).
 * ``/object/pose``: aligned Vicon pose plus the added noise; ``/truth/object/pose``: the same
   without noise (the best available truth: Vicon).
@@ -337,7 +338,7 @@ def _read_all(files: list[Path], args: argparse.Namespace, config: ImportConfig)
         mass_properties,
         resample_push,
     )
-    from dbcslam_ros.mitpush_align import AlignmentFit, shape_alignment
+    from dbcslam_ros.mitpush_align import shape_alignment
 
     raws = [load_push(f) for f in files]
     shapes = sorted({r.info.shape for r in raws})
