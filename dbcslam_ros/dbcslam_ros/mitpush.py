@@ -9,25 +9,31 @@ Vicon-tracked object frame (x, y, yaw) and the F/T reading (fx, fy, tau_z). File
 What this module found in the 50 ABS training pushes and applies (numbers from
 ``python -m dbcslam_ros.push_analysis``; see the report in that module):
 
-* **Frame of the outline.** The outline files ``shapes/<shape>_ext.npy`` are listed clockwise
-  and are the *mirror image* of the object as the Vicon frame sees it: a point (x, y) of the
-  file lies at (-y, -x) in the tracked frame. With the body frame chosen as the x-mirrored
-  outline ``(-x, y)`` (counter-clockwise, about its centroid), the body pose is the Vicon pose
-  rotated by ``yaw_offset = +pi/2`` (:data:`ALIGNMENTS`). For the four shapes here (mirror
-  symmetric) the mirrored outline is the same set of points as the file's outline. With this
-  frame the file-name fields follow the natural convention: side ``i`` runs from body vertex
-  ``i`` to ``i + 1`` (counter-clockwise order of the mirrored file) and ``s`` is the fraction
-  along it; for the smooth outlines (ellipses, > 8 vertices) ``s`` is the fraction of the
-  perimeter from vertex 0 (:func:`expected_contact`).
-* **Tracked frame vs centroid.** Fitted per shape (in-motion tip-to-outline distance plus
-  first-contact location): ``ellip1`` (+0.2, +0.6) mm, ``ellip3`` (-0.5, -1.5) mm with a
-  yaw correction of -0.0144 rad, ``rect1`` and ``hex`` none. The corrections a refit still
-  finds on top of these (``push_analysis`` prints them: yaw -0.010 to -0.025 rad, offsets
-  < 0.6 mm, except along ``rect1``'s single pushed side where the fit is unconstrained) are
-  not applied.
-  After alignment: first-contact location error (pushes with |t| < 1.2 rad) median
-  0.45-1.44 mm per shape, max 3.9 mm; median |distance - radius| while the object moves
-  0.34-0.80 mm. The polygons' tip sits ~0.6-0.7 mm outside their outline on average.
+* **Shapes.** Any shape with an outline ``shapes/<shape>_ext.npy`` (11 in the dataset; the
+  training pushes use 4). Mass and inertia about the centroid are those of a uniform plate
+  cut to the outline (:func:`mass_properties`, :mod:`dbcslam_core.mass_properties`):
+  stainless steel 7950 kg/m^3, 13 mm, which reproduces the README's four masses within
+  0.33 % and inertias within 0.74 % (least-squares density of the four: 7946 kg/m^3).
+* **Frame alignment, estimated** (:mod:`dbcslam_ros.mitpush_align`; ``python -m
+  dbcslam_ros.mitpush_align`` prints the numbers): per shape, over every push file of it in
+  the same directory, the planar map outline file -> tracked frame (yaw, offset, mirrored or
+  not) that makes the pusher tip touch the outline on in-contact steps and first touch it
+  where the file name says (Huber, global search over yaw and both conventions). On the 50
+  training pushes the data select the *mirrored* convention for all four shapes (robust cost
+  1.1-13x lower than unmirrored): a point (x, y) of the file lies at about (-y, -x) in the
+  tracked frame, body yaw = Vicon yaw + ~pi/2, as the first importer had found by hand. The
+  fit reproduces its hand-fitted constants (:data:`ALIGNMENTS`) within 0.1 mm / 1.7 mrad for
+  ellip3 and within 0.8 mm in offset for all four, but puts the yaw 11-24 mrad lower for
+  ellip1, hex and rect1 (jackknife standard errors over the files 9-22 mrad), where its
+  robust cost is 1-29 % lower than the constants'; ``push_analysis`` had found the same
+  -10 to -25 mrad refit and left it unapplied. Residuals with the fit: median |tip-outline
+  distance - radius| 0.35-0.73 mm per shape (median over files), first contact from the
+  file name's point median 0.88-1.48 mm, max 4.1 mm (|t| < 1.2 rad). With this frame the
+  file-name fields follow the natural convention: side ``i`` runs from body vertex ``i`` to
+  ``i + 1`` (the mirrored file's order) and ``s`` is the fraction along it; for smooth
+  outlines (ellipses, > 8 vertices) ``s`` is the fraction of the perimeter from vertex 0
+  (:func:`expected_contact`). The numbers in the bullets below were measured with the hand-
+  fitted constants (alignment changes of < 1 mm / 25 mrad).
 * **F/T frame.** The force is the force the object exerts on the pusher, in the world (Vicon)
   axes already: while the object moves its direction is ``push direction + pi - t`` up to the
   friction tilt (median over files -0.012 rad, IQR [-0.14, +0.08] rad: no common rotation),
