@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import math
 import shutil
+import statistics
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -380,7 +381,7 @@ def _read_all(files: list[Path], args: argparse.Namespace, config: ImportConfig)
 def _report_fit(shape: str, fit: AlignmentFit, mass: float, inertia: float, source: str) -> None:
     a = fit.alignment
     onset = [e for e in fit.onset_errors if math.isfinite(e)]
-    first = f"{1e3 * sorted(onset)[len(onset) // 2]:.2f} mm" if onset else "n/a"
+    first = f"{1e3 * statistics.median(onset):.2f} mm" if onset else "n/a"
     print(
         f"{shape}: alignment fitted on {len(fit.names)} push file(s): "
         f"{'mirrored' if a.mirrored else 'as stored'}, yaw {a.yaw_offset:+.4f} rad, offset "
