@@ -712,3 +712,43 @@ def test_read_shape_table(tmp_path: Path) -> None:
     assert mp.read_shape_table(tmp_path / "missing.md") == {}
     assert mp.shape_names(DATA / "shapes") == ALL_SHAPES
     assert len(ALL_SHAPES) == 11
+
+
+def test_alignment_is_deterministic_and_the_same_for_every_file_of_a_set(tmp_path: Path) -> None:
+    import dbcslam_ros.mitpush_align as ma
+
+    truth = mp.ShapeAlignment(2.0, (0.0005, 0.001), True)
+    paths, vertices = _write_pushes(tmp_path, "hex", truth)
+    first = ma.shape_alignment(mp.load_push(paths[0]), vertices)
+    ma._CACHE.clear()
+    again = ma.shape_alignment(mp.load_push(paths[3]), vertices)
+    assert again == first
+    cfg = mp.ImportConfig()
+    outline = mp.load_outline("hex", tmp_path / "shapes")
+    series = mp.resample_push(mp.load_push(paths[2]), outline, cfg)  # default: the set's fit
+    assert series.alignment == first.alignment
+
+
+SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "mit-push"
+
+
+@pytest.mark.skipif(not (SHARED / "abs" / "train").is_dir(), reason="full MIT subset absent")
+@pytest.mark.parametrize("shape", sorted(mp.ALIGNMENTS))
+def test_pooled_fit_near_the_hand_constants_on_the_full_subset(shape: str) -> None:
+    """On the 50 training pushes (when present): mirrored, offsets within 1 mm and yaw within
+    30 mrad of the first importer's constants, at no higher robust cost than they have."""
+    import dbcslam_ros.mitpush_align as ma
+
+    files = sorted((SHARED / "abs" / "train").glob(f"*_shape={shape}_*.h5"))
+    outline = mp.load_outline(shape, SHARED / "shapes")
+    fit = ma.shape_alignment(mp.load_push(files[0]), outline.file_vertices)
+    ref = mp.ALIGNMENTS[shape]
+    a = fit.alignment
+    assert a.mirrored
+    assert fit.cost < fit.other_cost
+    assert abs(a.yaw_offset - ref.yaw_offset) < 0.03
+    assert np.hypot(a.offset[0] - ref.offset[0], a.offset[1] - ref.offset[1]) < 0.001
+    evidence = [ma.push_evidence(mp.load_push(f), outline.file_vertices) for f in files]
+    ref_cost, _, _ = ma._reference_stats(evidence, mp.convex_hull(outline.file_vertices), ref)
+    assert fit.cost <= ref_cost * 1.0001
+    assert fit.median_gap < 0.001
