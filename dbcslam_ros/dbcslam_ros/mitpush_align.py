@@ -41,10 +41,10 @@ random starts).
 that sticks to a flat side sees one point of the outline, a circle none of its yaw, a push at
 |t| = 1.4 rad has no first-contact term): fitted alone, 30 of the 50 training pushes put the
 outline more than 3 mm (Hausdorff distance) from where the pooled fit puts it, while their
-own residuals are as small. So a push's alignment is fitted over every push file of its shape in its directory
-(:func:`shape_alignment`; the dataset's ``abs/train`` holds 10-14 per shape), the same
-whichever of them are imported and in which order. See :mod:`dbcslam_ros.mitpush` for the
-numbers on the dataset.
+own residuals are as small. So a push's alignment is fitted over every push file of its shape
+in its directory (:func:`shape_alignment`; the dataset's ``abs/train`` holds 10-14 per
+shape), the same whichever of them are imported and in which order. See
+:mod:`dbcslam_ros.mitpush` for the numbers on the dataset.
 """
 
 from __future__ import annotations
