@@ -69,7 +69,6 @@ __all__ = [
     "AlignmentFit",
     "PushEvidence",
     "fit_alignment",
-    "fit_shapes",
     "named_contact",
     "push_evidence",
     "shape_alignment",
@@ -326,22 +325,6 @@ def fit_alignment(
         onset_errors=tuple(errors),
         names=tuple(e.name for e in evidence),
     )
-
-
-def fit_shapes(
-    pushes: Sequence[tuple[mp.RawPush, FloatArray]],
-    dt: float = 0.01,
-    contact_threshold: float = mp.CONTACT_THRESHOLD,
-) -> dict[str, AlignmentFit]:
-    """One pooled fit per shape over the pushes given as (raw push, outline file vertices)."""
-    groups: dict[str, list[PushEvidence]] = {}
-    verts: dict[str, FloatArray] = {}
-    for raw, v in pushes:
-        groups.setdefault(raw.info.shape, []).append(
-            push_evidence(raw, v, dt=dt, contact_threshold=contact_threshold)
-        )
-        verts.setdefault(raw.info.shape, v)
-    return {shape: fit_alignment(ev, verts[shape]) for shape, ev in sorted(groups.items())}
 
 
 _CACHE: dict[tuple[object, ...], AlignmentFit] = {}
