@@ -27,6 +27,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.time import Time
 
 from dbcslam_ros.errors import MessageTypeError
+from dbcslam_ros.network import apply_loopback_defaults
 from dbcslam_ros.runtime.qos import QoSProfile
 from dbcslam_ros.runtime.typestore import normalize_type_name
 
@@ -53,7 +54,14 @@ __all__ = [
     "type_name_of",
 ]
 
-init = rclpy.init
+
+
+def init(args: Any = None) -> None:
+    """rclpy.init after the loopback-only network defaults (:mod:`dbcslam_ros.network`)."""
+    apply_loopback_defaults()
+    rclpy.init(args=args)
+
+
 ok = rclpy.ok
 shutdown = rclpy.shutdown
 try_shutdown = rclpy.try_shutdown
