@@ -9,6 +9,7 @@ every local address to be loopback; it also requires the listener to receive est
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import os
 import random
@@ -207,10 +208,8 @@ def test_running_nodes_bind_only_loopback(
     while time.monotonic() < deadline and listener.poll() is None:
         for name, proc in (("listener", listener), ("filter", flt), ("sim", sim)):
             if proc.poll() is None:
-                try:
+                with contextlib.suppress(FileNotFoundError, ProcessLookupError):
                     seen[name] |= local_addresses(proc.pid)
-                except (FileNotFoundError, ProcessLookupError):
-                    pass
         time.sleep(0.25)
     listener.wait(10)
     logs = {p.name: p.read_text(errors="replace") for p in tmp_path.glob("*.log")}

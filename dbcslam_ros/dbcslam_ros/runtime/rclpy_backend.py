@@ -55,7 +55,6 @@ __all__ = [
 ]
 
 
-
 def init(args: Any = None) -> None:
     """rclpy.init after the loopback-only network defaults (:mod:`dbcslam_ros.network`)."""
     apply_loopback_defaults()
