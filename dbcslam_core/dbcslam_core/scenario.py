@@ -54,6 +54,7 @@ from .errors import ScenarioError
 
 __all__ = [
     "DEFAULT_VELOCITY_EPS",
+    "MAX_SCENARIO_BYTES",
     "PRESSURE_MODELS",
     "SCENARIO_KINDS",
     "Body",
@@ -70,6 +71,23 @@ __all__ = [
     "gripper_scenario",
     "push_scenario",
 ]
+
+#: Longest `/scenario` YAML text accepted (characters); real scenarios are a few kB (polygon
+#: outlines of ~100 vertices included).
+MAX_SCENARIO_BYTES = 256 * 1024
+
+
+class _NoAliasSafeLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses anchors and aliases (no alias expansion attacks)."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(
+                None, None, "YAML aliases are not accepted in a scenario", event.start_mark
+            )
+        return super().compose_node(parent, index)
+
 
 SCENARIO_KINDS: tuple[str, ...] = ("edge", "gripper", "push")
 ScenarioKind = Literal["edge", "gripper", "push"]
@@ -662,9 +680,20 @@ class Scenario:
 
     @classmethod
     def from_yaml(cls, text: str) -> Scenario:
-        """Parse and validate the `/scenario` YAML text."""
+        """Parse and validate the `/scenario` YAML text.
+
+        Hostile input is refused before it costs memory or time: text longer than
+        `MAX_SCENARIO_BYTES`, and YAML anchors/aliases (a scenario never needs them; nested
+        aliases are the "billion laughs" expansion), raise ScenarioError.
+        """
+        if len(text) > MAX_SCENARIO_BYTES:
+            msg = (
+                f"scenario YAML is {len(text)} characters long; at most "
+                f"{MAX_SCENARIO_BYTES} are accepted (a scenario is a few kB)"
+            )
+            raise ScenarioError(msg)
         try:
-            data = yaml.safe_load(text)
+            data = yaml.load(text, Loader=_NoAliasSafeLoader)  # noqa: S506 (a SafeLoader)
         except yaml.YAMLError as err:
             msg = f"scenario YAML does not parse: {err}"
             raise ScenarioError(msg) from err

@@ -117,7 +117,10 @@ def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
     values = (x, y, z, w)
     if not all(math.isfinite(v) for v in values):
         raise InputRejected("nan", f"quaternion has non-finite components {values}")
-    norm = math.sqrt(sum(v * v for v in values))
+    scale = max(abs(v) for v in values)  # scaled first: no overflow for huge components
+    if scale == 0.0:
+        raise InputRejected("zero_quaternion", f"quaternion {values} has zero norm")
+    norm = scale * math.sqrt(sum((v / scale) ** 2 for v in values))
     if norm < 1e-9:
         raise InputRejected("zero_quaternion", f"quaternion {values} has zero norm")
     x, y, z, w = (v / norm for v in values)

@@ -24,7 +24,9 @@ observation into filter steps. Rules (documented in the README):
   played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
   predict-only steps first (dropped observations); a gap longer than `max_gap_s` (a stalled
   sensor) re-initialises the filter at the new pose instead (counted in `resets`), except in
-  catch-up.
+  catch-up. A time jump (either kind) takes effect only when a second pose confirms the new
+  time line (within `max_gap_s` after the first): the first pose of a jump is rejected
+  (reason `stamp_jump`), so one pose with a corrupted stamp never throws the filter away.
 * Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
   model steps for a gap of n > m steps. The particles first coast over the n - m skipped
   steps at their own constant velocity (no contact dynamics; counted in `skipped_steps`),
@@ -203,6 +205,7 @@ class FilterSession:
         self._joints = _History()
         self._force = _History()
         self._last_pose_ns: int | None = None
+        self._jump_candidate_ns: int | None = None
         self._filter: DbcSlamFilter | None = None
         self._new_filter()
 
@@ -245,13 +248,11 @@ class FilterSession:
         reading = self.correct(reading)
         dt_ns = round(self.scenario.dt * NS)
         last = self._last_pose_ns
-        if last is not None and reading.stamp_ns < last - self.reset_after_ns:
+        if last is not None and self._is_time_jump(reading.stamp_ns, last, max_steps):
+            self._confirm_time_jump(reading.stamp_ns, last)
             self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
             last = None
-        if max_steps is None and last is not None and reading.stamp_ns - last > self.max_gap_ns:
-            # A stalled sensor (not our own backlog, which catches up with max_steps).
-            self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
-            last = None
+        self._jump_candidate_ns = None
         if last is not None and reading.stamp_ns - last < dt_ns // 2:
             self.rejected["stamp_order"] += 1
             msg = (
@@ -304,6 +305,32 @@ class FilterSession:
         self.gap_steps += n_gap - 1
         self.skipped_steps += n_gap - n_run
         return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started, n_run)]
+
+    def _is_time_jump(self, stamp_ns: int, last_ns: int, max_steps: int | None) -> bool:
+        """A jump back in time beyond ``reset_after`` (a looped bag), or forward beyond
+        ``max_gap`` (a stalled sensor; not in catch-up, where our own backlog made the gap)."""
+        if stamp_ns < last_ns - self.reset_after_ns:
+            return True
+        return max_steps is None and stamp_ns - last_ns > self.max_gap_ns
+
+    def _confirm_time_jump(self, stamp_ns: int, last_ns: int) -> None:
+        """Accept a time jump only when a second pose continues the new time line.
+
+        One pose whose stamp jumps (a corrupted or hostile stamp) must not throw the filter
+        away: the first pose of a jump is held as a candidate and rejected (``stamp_jump``);
+        the next pose confirms the jump if it lies within ``max_gap`` after the candidate,
+        otherwise the candidate is forgotten and the old time line goes on.
+        """
+        cand = self._jump_candidate_ns
+        if cand is not None and 0 < stamp_ns - cand <= self.max_gap_ns:
+            return
+        self._jump_candidate_ns = stamp_ns
+        self.rejected["stamp_jump"] += 1
+        msg = (
+            f"pose stamp {stamp_ns * 1e-9:.3f} s jumps from the last pose at "
+            f"{last_ns * 1e-9:.3f} s: held until the next pose confirms the new time line"
+        )
+        raise InputRejected("stamp_jump", msg)
 
     def correct(self, reading: PoseReading) -> PoseReading:
         """The pose reading as the model's sensor effects say the true pose was: bias

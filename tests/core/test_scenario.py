@@ -251,3 +251,26 @@ def test_fuzzed_scenarios_raise_only_scenario_error(
     except ScenarioError:
         return
     assert Scenario.from_yaml(sc.to_yaml()) == sc
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("a: &x [1, 2]\nb: *x\n", "aliases are not accepted"),
+        (
+            'l0: &a ["lol", "lol"]\nl1: &b [*a, *a, *a]\nl2: [*b, *b, *b, *b]\n',
+            "aliases are not accepted",
+        ),
+        ("x: " + "9" * (300 * 1024), "at most"),
+        ("!!python/object/apply:os.system ['true']", "does not parse"),
+    ],
+)
+def test_hostile_scenario_yaml_is_refused(text: str, match: str) -> None:
+    with pytest.raises(ScenarioError, match=match):
+        Scenario.from_yaml(text)
+
+
+def test_presets_still_round_trip_through_the_guarded_loader() -> None:
+    pushed = push_scenario(SQUARE, mass=0.8, support_pair="support")
+    for sc in (edge_scenario(), gripper_scenario(), pushed):
+        assert Scenario.from_yaml(sc.to_yaml()) == sc

@@ -51,6 +51,12 @@ def test_quaternion_to_yaw_normalises(yaw: float, scale: float) -> None:
     assert abs(math.remainder(quaternion_to_yaw(*q) - yaw, 2 * math.pi)) < 1e-9
 
 
+@pytest.mark.parametrize("big", [1e154, 1e200, 1e308])
+def test_huge_quaternions_do_not_overflow(big: float) -> None:
+    q = [big * v for v in yaw_to_quaternion(1.0)]
+    assert abs(quaternion_to_yaw(*q) - 1.0) < 1e-9
+
+
 @pytest.mark.parametrize(
     ("quat", "reason"),
     [
