@@ -82,7 +82,7 @@ class _NoAliasSafeLoader(yaml.SafeLoader):
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
+            event = self.peek_event()  # type: ignore[no-untyped-call]
             raise yaml.composer.ComposerError(
                 None, None, "YAML aliases are not accepted in a scenario", event.start_mark
             )
@@ -693,7 +693,7 @@ class Scenario:
             )
             raise ScenarioError(msg)
         try:
-            data = yaml.load(text, Loader=_NoAliasSafeLoader)  # noqa: S506 (a SafeLoader)
+            data = yaml.load(text, Loader=_NoAliasSafeLoader)  # a SafeLoader subclass
         except yaml.YAMLError as err:
             msg = f"scenario YAML does not parse: {err}"
             raise ScenarioError(msg) from err
