@@ -163,8 +163,9 @@ def joints_from_msg(msg: Any, names: Sequence[str]) -> JointReading:
         )
     unknown = sorted(set(got) - set(names))
     if unknown:
+        shown = f"{unknown[:5]} and {len(unknown) - 5} more" if len(unknown) > 5 else unknown
         raise InputRejected(
-            "unknown_joint", f"unknown joint name(s) {unknown}; expected {list(names)}"
+            "unknown_joint", f"unknown joint name(s) {shown}; expected {list(names)}"
         )
     missing = [n for n in names if n not in got]
     if missing:

@@ -370,14 +370,14 @@ class FilterNode:
         except InputRejected as err:
             self._reject(err.reason, f"rejected /object/pose: {err}")
             return
-        newest = max(
-            self._pending[0].stamp_ns if self._pending is not None else -1,
-            self.session.last_pose_ns if self.session.last_pose_ns is not None else -1,
-        )
-        back_ns = newest - reading.stamp_ns
-        if newest >= 0 and 0 <= back_ns <= self.session.reset_after_ns:
-            # Not newer than the newest pose: a repeated or backwards stamp, not backlog.
-            self._reject("stamp_order", "rejected /object/pose: stamp not newer than the last")
+        stamps = [self.session.last_pose_ns]
+        if self._pending is not None:
+            stamps.append(self.session.correct(self._pending[0]).stamp_ns)
+        newest = max((s for s in stamps if s is not None), default=None)
+        try:  # repeated, backwards or jumping stamps never displace a good pose
+            self.session.screen_pose(reading, newest)
+        except InputRejected as err:
+            self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
             return
         if self._pending is not None:
             self.session.reject("backlog")

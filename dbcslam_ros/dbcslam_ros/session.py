@@ -24,9 +24,10 @@ observation into filter steps. Rules (documented in the README):
   played with --loop) resets the filter cleanly. A gap of n model steps runs n - 1
   predict-only steps first (dropped observations); a gap longer than `max_gap_s` (a stalled
   sensor) re-initialises the filter at the new pose instead (counted in `resets`), except in
-  catch-up. A time jump (either kind) takes effect only when a second pose confirms the new
-  time line (within `max_gap_s` after the first): the first pose of a jump is rejected
-  (reason `stamp_jump`), so one pose with a corrupted stamp never throws the filter away.
+  catch-up. A time jump (either kind) takes effect only when `JUMP_CONFIRMATIONS` (3) poses in
+  a row continue the new time line (each within `max_gap_s` of the previous); the poses before
+  are rejected (reason `stamp_jump`), so poses with corrupted stamps never throw the filter
+  away while the real time line goes on.
 * Catch-up (a live node that cannot keep up): `add_pose(reading, max_steps=m)` runs at most m
   model steps for a gap of n > m steps. The particles first coast over the n - m skipped
   steps at their own constant velocity (no contact dynamics; counted in `skipped_steps`),
@@ -78,6 +79,10 @@ def observation_correction(
             bias[2] += e.param("yaw")
         delay += e.delay
     return (bias[0], bias[1], bias[2]), delay
+
+
+#: Poses in a row on a new time line before a time jump resets the filter (`add_pose`).
+JUMP_CONFIRMATIONS = 3
 
 
 @dataclass(frozen=True)
@@ -205,7 +210,7 @@ class FilterSession:
         self._joints = _History()
         self._force = _History()
         self._last_pose_ns: int | None = None
-        self._jump_candidate_ns: int | None = None
+        self._jump_chain: list[int] = []  # stamps of a not yet confirmed time jump
         self._filter: DbcSlamFilter | None = None
         self._new_filter()
 
@@ -252,7 +257,7 @@ class FilterSession:
             self._confirm_time_jump(reading.stamp_ns, last)
             self.reset(keep_until_ns=reading.stamp_ns + dt_ns)
             last = None
-        self._jump_candidate_ns = None
+        self._jump_chain.clear()
         if last is not None and reading.stamp_ns - last < dt_ns // 2:
             self.rejected["stamp_order"] += 1
             msg = (
@@ -306,6 +311,26 @@ class FilterSession:
         self.skipped_steps += n_gap - n_run
         return [StampedEstimate(reading.stamp_ns, est, time.perf_counter() - started, n_run)]
 
+    def screen_pose(self, reading: PoseReading, newest_ns: int | None) -> None:
+        """Check a pose's stamp on arrival, before it is queued (live node).
+
+        newest_ns: stamp of the newest pose used or queued. Raises InputRejected (and counts
+        it) for a stamp that repeats or goes back by at most ``reset_after`` (``stamp_order``)
+        and for the first pose of a time jump (``stamp_jump``, see `add_pose`), so that such a
+        pose never displaces a good one from the node's queue.
+        """
+        if newest_ns is None:
+            return
+        stamp_ns = self.correct(reading).stamp_ns
+        if 0 <= newest_ns - stamp_ns <= self.reset_after_ns:
+            self.rejected["stamp_order"] += 1
+            msg = f"pose stamp {stamp_ns} ns is not newer than the newest pose ({newest_ns} ns)"
+            raise InputRejected("stamp_order", msg)
+        if self._is_time_jump(stamp_ns, newest_ns, None):
+            self._confirm_time_jump(stamp_ns, newest_ns)
+        else:  # the old time line goes on: held jump candidates are forgotten
+            self._jump_chain.clear()
+
     def _is_time_jump(self, stamp_ns: int, last_ns: int, max_steps: int | None) -> bool:
         """A jump back in time beyond ``reset_after`` (a looped bag), or forward beyond
         ``max_gap`` (a stalled sensor; not in catch-up, where our own backlog made the gap)."""
@@ -314,21 +339,27 @@ class FilterSession:
         return max_steps is None and stamp_ns - last_ns > self.max_gap_ns
 
     def _confirm_time_jump(self, stamp_ns: int, last_ns: int) -> None:
-        """Accept a time jump only when a second pose continues the new time line.
+        """Accept a time jump only when `JUMP_CONFIRMATIONS` poses in a row show the new line.
 
-        One pose whose stamp jumps (a corrupted or hostile stamp) must not throw the filter
-        away: the first pose of a jump is held as a candidate and rejected (``stamp_jump``);
-        the next pose confirms the jump if it lies within ``max_gap`` after the candidate,
-        otherwise the candidate is forgotten and the old time line goes on.
+        A pose whose stamp jumps (corrupted or hostile, or the first of a looped bag) must not
+        throw the filter away on its own: it is held as a candidate and rejected
+        (``stamp_jump``). The jump is accepted at the pose that makes `JUMP_CONFIRMATIONS`
+        consecutive poses on the new time line (each within ``max_gap`` after the previous
+        one); any pose that continues the old time line forgets the candidates.
         """
-        cand = self._jump_candidate_ns
-        if cand is not None and 0 < stamp_ns - cand <= self.max_gap_ns:
+        chain = self._jump_chain
+        if chain and 0 < stamp_ns - chain[-1] <= self.max_gap_ns:
+            chain.append(stamp_ns)
+        else:
+            chain[:] = [stamp_ns]
+        if len(chain) >= JUMP_CONFIRMATIONS:
+            chain.clear()
             return
-        self._jump_candidate_ns = stamp_ns
         self.rejected["stamp_jump"] += 1
         msg = (
             f"pose stamp {stamp_ns * 1e-9:.3f} s jumps from the last pose at "
-            f"{last_ns * 1e-9:.3f} s: held until the next pose confirms the new time line"
+            f"{last_ns * 1e-9:.3f} s: held until {JUMP_CONFIRMATIONS} poses in a row confirm "
+            "the new time line"
         )
         raise InputRejected("stamp_jump", msg)
 
