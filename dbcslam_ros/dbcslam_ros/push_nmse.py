@@ -5,7 +5,13 @@ ends up; NMSE = mean squared error / variance of the true final displacement, pe
 (dx, dy in the object's initial body frame, dtheta), then averaged over the three (their
 analytical model: 0.72; a GP trained on the shape: 0.37).
 
-Models (`dbcslam_core.quasi_static`, the motion cone on an ellipsoidal limit surface):
+Models:
+
+* ``nominal dynamic``: the filter's own push model (`dbcslam_core.dynamics.PlanarModel`:
+  Stewart-Trinkle impulses, implicit Coulomb support friction mu 0.25 under uniform
+  pressure, pusher friction 0.2, plate mass from the outline), object at rest at the start;
+
+and (`dbcslam_core.quasi_static`, the motion cone on an ellipsoidal limit surface):
 
 * ``quasi-static, uniform c``: c from uniform support pressure over the outline, pusher
   friction mu_c = 0.2 (the dataset README's prior);
@@ -29,17 +35,20 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.quasi_static import limit_surface_c, rollout_push
+from dbcslam_core.scenario import push_scenario
 from dbcslam_ros.mitpush import (
     PUSHER_RADIUS,
     ImportConfig,
     load_outline,
     load_push,
+    mass_properties,
     push_files,
     resample_push,
 )
 
-__all__ = ["PushCase", "displacement", "load_cases", "main", "nmse", "predict"]
+__all__ = ["PushCase", "displacement", "load_cases", "main", "nmse", "predict", "predict_dynamic"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -47,6 +56,8 @@ FloatArray = npt.NDArray[np.float64]
 C_FACTORS = np.round(np.arange(0.4, 1.61, 0.1), 3)
 MU_C = np.round(np.arange(0.0, 0.61, 0.05), 3)
 NOMINAL_MU_C = 0.2
+#: support friction of the nominal dynamic model (the dataset README: roughly 0.1-0.35)
+NOMINAL_SUPPORT_MU = 0.25
 
 
 @dataclass(frozen=True)
@@ -61,6 +72,7 @@ class PushCase:
     tip: FloatArray
     dt: float
     truth: FloatArray  # (3,) dx, dy (initial body frame, m), dtheta (rad)
+    mass: float = 1.0  # kg (the stainless-steel plate of the outline)
 
 
 def displacement(pose0: npt.ArrayLike, pose1: npt.ArrayLike) -> FloatArray:
@@ -87,6 +99,7 @@ def load_cases(data: Path, progress: bool = True) -> list[PushCase]:
         shape = raw.info.shape
         series = resample_push(raw, load_outline(shape, shapes_dir), cfg)
         verts = np.asarray(series.outline.vertices, dtype=np.float64)
+        mass, _inertia, _src = mass_properties(series.outline, cfg)
         if shape not in outlines:
             outlines[shape] = (verts, limit_surface_c(verts))
         cases.append(
@@ -99,6 +112,7 @@ def load_cases(data: Path, progress: bool = True) -> list[PushCase]:
                 tip=series.tip.copy(),
                 dt=series.dt,
                 truth=displacement(series.pose[0], series.pose[-1]),
+                mass=mass,
             )
         )
         if progress:
@@ -115,6 +129,25 @@ def predict(case: PushCase, c_factor: npt.ArrayLike, mu_c: npt.ArrayLike) -> Flo
         case.vertices, case.pose0, case.tip, radius=PUSHER_RADIUS, dt=case.dt, mu_c=mu_c, c=c
     )
     return displacement(case.pose0, poses[..., -1, :])
+
+
+def predict_dynamic(case: PushCase, support_mu: float = NOMINAL_SUPPORT_MU) -> FloatArray:
+    """Final displacement (3,) by the nominal dynamic model: the core's Stewart-Trinkle
+    step with implicit Coulomb support friction (`PlanarModel`, uniform pressure), the object
+    at rest at the start, driven by the measured tip path, pusher friction NOMINAL_MU_C."""
+    sc = push_scenario(
+        case.vertices.tolist(),
+        mass=case.mass,
+        dt=case.dt,
+        pusher_radius=PUSHER_RADIUS,
+        support_mu=support_mu,
+    )
+    model = PlanarModel(sc, active_set=True)
+    state = State(q=case.pose0.copy(), v=np.zeros(3))
+    for k in range(case.tip.shape[0] - 1):
+        r = model.step(state, np.zeros(3), case.tip[k], case.tip[k + 1], mu=NOMINAL_MU_C)
+        state = State(q=r.q, v=r.v)
+    return displacement(case.pose0, state.q)
 
 
 def nmse(pred: FloatArray, truth: FloatArray) -> FloatArray:
@@ -143,6 +176,7 @@ def _grid_predictions(cases: list[PushCase]) -> FloatArray:
 def evaluate(cases: list[PushCase]) -> dict[str, object]:
     """Leave-one-shape-out table: per held-out shape, NMSE of each model and the fit."""
     grid = _grid_predictions(cases)
+    dyn = np.stack([predict_dynamic(c) for c in cases])
     shapes = sorted({c.shape for c in cases})
     truth = np.stack([c.truth for c in cases])
     shape_of = np.array([c.shape for c in cases])
@@ -161,6 +195,7 @@ def evaluate(cases: list[PushCase]) -> dict[str, object]:
             {
                 "shape": held,
                 "pushes": int(test.sum()),
+                "nmse_dynamic": float(nmse(dyn[test], truth[test])),
                 "nmse_uniform": float(nmse(grid[i_nom][test], truth[test])),
                 "nmse_fitted": float(nmse(grid[bi, bj][test], truth[test])),
                 "fit_c_factor": float(C_FACTORS[bi]),
@@ -171,6 +206,7 @@ def evaluate(cases: list[PushCase]) -> dict[str, object]:
         )
     return {
         "rows": rows,
+        "mean_nmse_dynamic": float(np.mean([r["nmse_dynamic"] for r in rows])),
         "mean_nmse_uniform": float(np.mean([r["nmse_uniform"] for r in rows])),
         "mean_nmse_fitted": float(np.mean([r["nmse_fitted"] for r in rows])),
         "grid": {"c_factor": C_FACTORS.tolist(), "mu_c": MU_C.tolist()},
@@ -189,18 +225,20 @@ def _markdown(res: dict[str, object]) -> str:
     rows = res["rows"]
     assert isinstance(rows, list)
     lines = [
-        "| held-out shape | pushes | NMSE quasi-static (uniform c, mu_c 0.2) | NMSE fitted on the "
-        "other shapes | fit: c / c_uniform, mu_c |",
-        "|---|---|---|---|---|",
+        "| held-out shape | pushes | NMSE nominal dynamic (support mu 0.25) | NMSE quasi-static "
+        "(uniform c, mu_c 0.2) | NMSE quasi-static fitted on the other shapes | "
+        "fit: c / c_uniform, mu_c |",
+        "|---|---|---|---|---|---|",
     ]
     for r in rows:
         edge = " (grid edge)" if r["fit_at_grid_edge"] else ""
         lines.append(
-            f"| {r['shape']} | {r['pushes']} | {r['nmse_uniform']:.3f} | {r['nmse_fitted']:.3f} "
+            f"| {r['shape']} | {r['pushes']} | {r['nmse_dynamic']:.3f} | {r['nmse_uniform']:.3f} "
+            f"| {r['nmse_fitted']:.3f} "
             f"| {r['fit_c_factor']:.1f}, {r['fit_mu_c']:.2f}{edge} |"
         )
-    uni, fit = res["mean_nmse_uniform"], res["mean_nmse_fitted"]
-    lines.append(f"| **mean** | | **{uni:.3f}** | **{fit:.3f}** | |")
+    dyn, uni, fit = (res[f"mean_nmse_{k}"] for k in ("dynamic", "uniform", "fitted"))
+    lines.append(f"| **mean** | | {dyn:.3f} | {uni:.3f} | {fit:.3f} | |")
     return "\n".join(lines) + "\n"
 
 
