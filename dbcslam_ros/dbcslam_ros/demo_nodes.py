@@ -17,6 +17,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from rclpy._rclpy_pybind11 import RCLError
+
 from dbcslam_ros import runtime as rt
 
 __all__ = ["Listener", "Talker", "listener_main", "main", "talker_main"]
@@ -109,7 +111,7 @@ class Listener:
 
 
 def _run(kind: str, args: Sequence[str] | None) -> int:
-    rt.init(args)
+    rt.init(list(args) if args is not None else sys.argv)
     node = rt.Node(kind)
     app: Talker | Listener = Talker(node) if kind == "talker" else Listener(node)
     try:
@@ -118,6 +120,9 @@ def _run(kind: str, args: Sequence[str] | None) -> int:
         node.get_logger().info("done")
     except (KeyboardInterrupt, rt.ExternalShutdownException):
         pass
+    except RCLError:
+        if rt.ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
     finally:
         node.destroy_node()
         rt.try_shutdown()

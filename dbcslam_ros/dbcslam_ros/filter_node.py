@@ -32,6 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rclpy
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.extensions import ModelExtension
@@ -50,6 +54,7 @@ from dbcslam_ros.convert import (
     yaw_to_quaternion,
 )
 from dbcslam_ros.errors import ParameterError
+from dbcslam_ros.ros_context import init_ros
 from dbcslam_ros.session import FilterSession, StampedEstimate
 
 __all__ = [
@@ -657,7 +662,7 @@ class FilterNode:
             text = "running"
         stamp_ns = self.last_estimate.stamp_ns if self.last_estimate else 0
         status = cls("diagnostic_msgs/msg/DiagnosticStatus")(
-            level=bytes([level]) if rt.BACKEND == "rclpy" else level,
+            level=bytes([level]),
             name="dbcslam_filter",
             message=text,
             hardware_id="dbcslam",
@@ -677,20 +682,23 @@ def _reliable() -> Any:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the filter node (Jazzy node shape); exit 2 on bad parameters."""
-    rt.init(args=list(args) if args is not None else sys.argv)
-    node = rt.Node("dbcslam_filter")
+    init_ros(list(args) if args is not None else sys.argv)
+    node = Node("dbcslam_filter")
     code = 0
     try:
         FilterNode(node)
-        rt.spin(node)
-    except (KeyboardInterrupt, rt.ExternalShutdownException):
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        if rclpy.ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
     except ParameterError as err:
         node.get_logger().error(f"dbcslam_filter: {err}")
         code = 2
     finally:
         node.destroy_node()
-        rt.try_shutdown()
+        rclpy.try_shutdown()
     return code
 
 

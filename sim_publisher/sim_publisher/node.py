@@ -381,13 +381,20 @@ def main(args: Sequence[str] | None = None) -> int:
     from dbcslam_ros import runtime as rt
     from sim_publisher.errors import ParamError
 
-    rt.init(args=list(args) if args is not None else sys.argv)
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from dbcslam_ros.ros_context import init_ros
+
+    init_ros(list(args) if args is not None else sys.argv)
     node = rt.Node("sim_publisher")
     code = 0
     try:
         SimNode(node).run()
     except (KeyboardInterrupt, rt.ExternalShutdownException):
         pass
+    except RCLError:
+        if rt.ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
     except (ValueError, ParamError) as err:
         node.get_logger().error(f"sim_publisher: bad parameters: {err}")
         code = 2

@@ -106,7 +106,7 @@ def node_session(name: str) -> Iterator[tuple[Any, Any, StopSignal]]:
     """
     from dbcslam_ros import runtime as rt
 
-    rt.init(args=["dbcslam"])
+    rt.init(["dbcslam"], handle_signals=False)
     stop = StopSignal()
     node = None
     try:

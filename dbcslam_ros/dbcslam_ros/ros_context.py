@@ -1,0 +1,59 @@
+"""The one place the project starts and stops ROS 2 (rclpy, ROS 2 Jazzy).
+
+Every node and CLI tool (filter, sim, demo nodes, ``record / play / topic / demo``) calls
+:func:`init_ros` instead of ``rclpy.init`` so network defaults are applied in one place:
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless the user set it (leaving the machine is an
+explicit choice: export ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``).
+
+:func:`spin_node` is ``rclpy.spin`` with the clean-shutdown rule of ``ros2/demos``: SIGINT
+(``KeyboardInterrupt``) and SIGTERM (``ExternalShutdownException``) end it quietly, and so does
+the race in Jazzy rclpy where the signal handler shuts the context down while the executor
+builds its wait set (``RCLError: ... the given context is not valid``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+__all__ = ["init_ros", "is_shutdown_error", "spin_node"]
+
+
+def init_ros(args: Sequence[str] | None = None, *, handle_signals: bool = True) -> None:
+    """``rclpy.init`` with the project's network defaults (see the module docstring).
+
+    ``args`` is a full argv (``--ros-args ...`` is read by rcl); ``None`` means none.
+    ``handle_signals=False`` leaves SIGINT/SIGTERM to the caller (the CLI tools stop on their
+    own handlers); otherwise rclpy's handlers shut the context down on either signal.
+    """
+    from rclpy.signals import SignalHandlerOptions
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    options = SignalHandlerOptions.ALL if handle_signals else SignalHandlerOptions.NO
+    rclpy.init(args=list(args) if args is not None else None, signal_handler_options=options)
+
+
+def is_shutdown_error(err: BaseException) -> bool:
+    """True when ``err`` only says that the context was shut down (by a signal)."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    if isinstance(err, (KeyboardInterrupt, ExternalShutdownException)):
+        return True
+    return isinstance(err, RCLError) and not rclpy.ok()
+
+
+def spin_node(node: Node) -> None:
+    """Spin ``node`` until SIGINT/SIGTERM or shutdown; returns normally in those cases."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RCLError:
+        if rclpy.ok():
+            raise
