@@ -247,7 +247,7 @@ def test_topic_echo_prints_yaml_documents_list_shows_types_hz_measures(
 ) -> None:
     talker = node_process("h2_cli_helper", "pose", env=helper_env)
     assert talker.wait_for_log("publishing", 30), talker.log()
-    env = {**os.environ, "DBCSLAM_RUNTIME": "dds"}
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
     def run(*argv: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

@@ -24,8 +24,6 @@ import yaml
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import array_from_msg, stamp_to_ns
 
-pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
-
 INPUT_TYPES = {
     "/object/pose": "geometry_msgs/msg/PoseStamped",
     "/object/wrench": "geometry_msgs/msg/WrenchStamped",
