@@ -36,6 +36,7 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.utilities import ok, try_shutdown
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.extensions import ModelExtension
@@ -691,14 +692,14 @@ def main(args: Sequence[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
-        if rclpy.ok():  # not the signal-vs-wait-set race of a shutdown
+        if ok():  # not the signal-vs-wait-set race of a shutdown
             raise
     except ParameterError as err:
         node.get_logger().error(f"dbcslam_filter: {err}")
         code = 2
     finally:
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     return code
 
 

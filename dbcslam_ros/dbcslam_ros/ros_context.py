@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.utilities import ok
 
 __all__ = ["init_ros", "is_shutdown_error", "spin_node"]
 
@@ -43,7 +44,7 @@ def is_shutdown_error(err: BaseException) -> bool:
 
     if isinstance(err, (KeyboardInterrupt, ExternalShutdownException)):
         return True
-    return isinstance(err, RCLError) and not rclpy.ok()
+    return isinstance(err, RCLError) and not ok()
 
 
 def spin_node(node: Node) -> None:
@@ -55,5 +56,5 @@ def spin_node(node: Node) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
-        if rclpy.ok():
+        if ok():
             raise

@@ -26,6 +26,7 @@ from typing import Any
 
 import rclpy
 import rclpy.logging
+import rclpy.utilities
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
@@ -83,9 +84,9 @@ __all__ = [
 ]
 
 init = init_ros
-ok = rclpy.ok
+ok = rclpy.utilities.ok
 shutdown = rclpy.shutdown
-try_shutdown = rclpy.try_shutdown
+try_shutdown = rclpy.utilities.try_shutdown
 spin = rclpy.spin
 spin_once = rclpy.spin_once
 get_logger = rclpy.logging.get_logger

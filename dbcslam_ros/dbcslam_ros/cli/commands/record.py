@@ -189,9 +189,7 @@ def _run(args: argparse.Namespace) -> int:
     writer.open()  # fails before any DDS work if the bag exists
     try:
         with node_session(RECORDER_NODE) as (rt, node, stop):
-            rec = _Recorder(
-                rt, node, writer, list(args.topics), internal=args.include_ros_topics
-            )
+            rec = _Recorder(rt, node, writer, list(args.topics), internal=args.include_ros_topics)
             if args.contract:
                 rec.subscribe_contract()
             start = time.monotonic()
