@@ -295,7 +295,10 @@ class SimNode:
             self.rt.spin_once(self.node, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
         if pub.get_subscription_count() > 0:
             # Give the reader's side of the match a moment to complete as well.
-            self.rt.spin_once(self.node, timeout_sec=0.2)
+            # (Fast DDS: the reader learns of the writer up to ~1 s after the writer of it)
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                self.rt.spin_once(self.node, timeout_sec=0.05)
 
     def run(self) -> None:
         """Publish every tick (paced in real time unless fast), then flush reliable topics."""

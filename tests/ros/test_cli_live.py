@@ -58,7 +58,7 @@ def publish(count, out, stream=False):
             fh.flush()
             i += 1
             rt.spin_once(node, timeout_sec=0.005)
-    pub.wait_for_acks(5.0)
+    pub.wait_for_all_acked(rt.Duration(seconds=5.0))
     print("done", flush=True)
     node.destroy_node()
     rt.try_shutdown()
@@ -70,12 +70,18 @@ def subscribe(count, out):
     node = rt.Node("h2_test_sub")
     got = []
     scenario = []
+    def keep(into):
+        # exact CDR of what arrived (the middleware may add trailing alignment bytes)
+        def cb(data):
+            into.append(rt.canonical_cdr(data, "std_msgs/msg/String"))
+        return cb
+
     rt.create_raw_subscription(
-        node, "std_msgs/msg/String", "/chatter", got.append,
+        node, "std_msgs/msg/String", "/chatter", keep(got),
         rt.make_qos("reliable", "volatile", "keep_last", 1000),
     )
     rt.create_raw_subscription(
-        node, "std_msgs/msg/String", "/scenario", scenario.append, rt.qos_profile("latched")
+        node, "std_msgs/msg/String", "/scenario", keep(scenario), rt.qos_profile("latched")
     )
     print("ready", flush=True)
     rt.spin_until(node, lambda: len(got) >= count and scenario, 40.0)

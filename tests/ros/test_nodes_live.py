@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from rclpy.executors import SingleThreadedExecutor
 
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import array_from_msg, stamp_to_ns
@@ -69,7 +70,7 @@ def _subscribe_all(node: Any, rec: Recording, extra: dict[str, str]) -> list[Any
         if topic == "/scenario":
             qos = rt.qos_profile("latched")
         elif topic in SENSOR:
-            qos = rt.qos_profile("sensor_data", depth=100)
+            qos = rt.qos_profile("sensor_data", depth=1000)
         else:
             qos = rt.qos_profile("default", depth=1000)
 
@@ -94,8 +95,12 @@ def _record(
     deadline = time.monotonic() + until_s
     sim_done = False
     total, quiet_since = -1, time.monotonic()
+    # one executor for the whole run: rclpy.spin_once(node) adds and removes the node (and
+    # rebuilds its wait set) on every call, too slow to keep up with a fast run
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     while time.monotonic() < deadline:
-        rt.spin_once(node, timeout_sec=0.02)
+        executor.spin_once(timeout_sec=0.02)
         if not rec.graph and len(rec.msgs["/dbcslam/pose"]) >= graph_after:
             rec.graph = {t: list(ts) for t, ts in rt.get_topic_names_and_types(node)}
         now_total = sum(len(v) for v in rec.msgs.values())
@@ -104,6 +109,8 @@ def _record(
         sim_done = sim_done or sim.proc.poll() is not None
         if sim_done and time.monotonic() - quiet_since > 1.5:
             break
+    executor.remove_node(node)
+    executor.shutdown()
     rec.sim_code = sim.proc.poll()
     rec.filter_alive = filt.proc.poll() is None
     rec.sim_log = sim.log()

@@ -5,8 +5,6 @@ from __future__ import annotations
 import itertools
 import time
 
-import pytest
-
 from dbcslam_ros import runtime as rt
 
 
