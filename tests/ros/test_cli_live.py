@@ -196,7 +196,7 @@ def test_record_then_play_delivers_every_message_in_order_with_same_bytes(
         "--rate",
         "4",
         "--delay",
-        "2.0",
+        "5.0",  # Fast DDS: a missed first announcement is repeated after 3 s
         "--topics",
         "/scenario",
         "/chatter",
