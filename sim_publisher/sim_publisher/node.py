@@ -381,12 +381,11 @@ class SimNode:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the simulator node; exit code 0 after the run, 2 on bad parameters."""
-    from dbcslam_ros import runtime as rt
-    from sim_publisher.errors import ParamError
-
     from rclpy._rclpy_pybind11 import RCLError
 
+    from dbcslam_ros import runtime as rt
     from dbcslam_ros.ros_context import init_ros
+    from sim_publisher.errors import ParamError
 
     init_ros(list(args) if args is not None else sys.argv)
     node = rt.Node("sim_publisher")

@@ -55,9 +55,10 @@ MCAP file (ros2 profile, CDR messages, the offered QoS of each topic), readable 
 Without TOPIC arguments every topic is recorded (except /rosout and /parameter_events,
 unless --include-ros-topics); topics that appear later are picked up (the graph is polled
 every 0.2 s). Messages are stored as exact CDR (re-serialised through the rosbags
-typestore: exact length, zeroed padding), so a recording is reproducible byte for byte. Each topic is subscribed with a QoS compatible with
-what its publishers offer (reliable if all are, transient local if all are, so latched
-topics such as /scenario are recorded even when published before the recorder started).
+typestore: exact length, zeroed padding), so a recording is reproducible byte for byte.
+Each topic is subscribed with a QoS compatible with what its publishers offer (reliable if
+all are, transient local if all are, so latched topics
+such as /scenario are recorded even when published before the recorder started).
 Log time = receive time (ns since the epoch). --contract subscribes to the topics of the
 interface contract at once, with their contract types and QoS, so nothing a node started
 afterwards publishes is missed (`dbcslam demo` uses it); other topics are still discovered.
