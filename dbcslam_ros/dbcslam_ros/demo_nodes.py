@@ -97,6 +97,7 @@ class Listener(Node):
         self.scenario: str | None = None
         node.create_subscription(cls, "chatter", self.on_chatter, rt.qos_profile("default"))
         node.create_subscription(cls, scen_topic, self.on_scenario, rt.qos_profile("latched"))
+        self.get_logger().info(f"listening on chatter and {scen_topic}")  # type: ignore[no-untyped-call]
 
     def on_chatter(self, msg: Any) -> None:
         """Record and log one chatter message."""

@@ -36,6 +36,10 @@ def init_ros(args: Sequence[str] | None = None, *, handle_signals: bool = True) 
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     options = SignalHandlerOptions.ALL if handle_signals else SignalHandlerOptions.NO
     rclpy.init(args=list(args) if args is not None else None, signal_handler_options=options)
+    # Build the global executor now, while the context is valid: built later by the first
+    # spin after a signal already shut the context down, its constructor fails half-way and
+    # its __del__ prints "Exception ignored ... no attribute '_sigint_gc'" at exit.
+    rclpy.get_global_executor()
 
 
 def is_shutdown_error(err: BaseException) -> bool:

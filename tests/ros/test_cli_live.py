@@ -275,7 +275,7 @@ def test_topic_echo_prints_yaml_documents_list_shows_types_hz_measures(
     docs = [d for d in yaml.safe_load_all(field.stdout) if d is not None]
     assert docs == [{"x": 1.5, "y": -0.25, "z": 0.0}]
 
-    listing = run("topic", "list", "-t")
+    listing = run("topic", "list", "-t", "--spin-time", "4")  # generous: loaded machines
     assert listing.returncode == 0, listing.stderr
     lines = listing.stdout.splitlines()
     assert "/scenario [std_msgs/msg/String]" in lines

@@ -3,7 +3,7 @@
 Jazzy rclpy shuts its context down from its own signal handler; a signal that lands while
 the executor builds its wait set used to end the filter node with ``RCLError: ... context is
 not valid`` (exit 1). Each process is started, given time to reach its spin loop (a log line,
-or a fixed delay for tools that print nothing while waiting), signalled, and must exit 0
+it prints once its handlers are in place), signalled, and must exit 0
 without a traceback. ``DBCSLAM_SHUTDOWN_REPEAT`` (default 2) repeats each case; the README
 states the 20-of-20 run.
 """
@@ -24,7 +24,7 @@ from dbcslam_core.scenario import edge_scenario
 REPEAT = int(os.environ.get("DBCSLAM_SHUTDOWN_REPEAT", "2"))
 
 
-def _cases(tmp: Path) -> dict[str, tuple[tuple[str, ...], str | None]]:
+def _cases(tmp: Path) -> dict[str, tuple[tuple[str, ...], str]]:
     scen = tmp / "edge.yaml"
     scen.write_text(edge_scenario().to_yaml())
     return {
@@ -46,13 +46,13 @@ def _cases(tmp: Path) -> dict[str, tuple[tuple[str, ...], str | None]]:
             "publishing scenario",
         ),
         "talker": (("dbcslam_ros.demo_nodes", "talker"), "sent 'hello 1'"),
-        "listener": (("dbcslam_ros.demo_nodes", "listener"), None),
+        "listener": (("dbcslam_ros.demo_nodes", "listener"), "listening on chatter"),
         "record": (
             ("dbcslam_ros.cli", "record", "-o", str(tmp / "bag"), "--contract", "--overwrite"),
             "recording /scenario",
         ),
-        "topic_echo": (("dbcslam_ros.cli", "topic", "echo", "/nobody"), None),
-        "topic_hz": (("dbcslam_ros.cli", "topic", "hz", "/nobody"), None),
+        "topic_echo": (("dbcslam_ros.cli", "topic", "echo", "/nobody"), "waiting for a publisher"),
+        "topic_hz": (("dbcslam_ros.cli", "topic", "hz", "/nobody"), "waiting for a publisher"),
     }
 
 
@@ -66,10 +66,8 @@ def test_process_exits_0_on_signal(
     argv, ready = _cases(tmp_path)[case]
     for i in range(REPEAT):
         proc = node_process(*argv)
-        if ready is None:
-            time.sleep(2.0)
-        else:
-            assert proc.wait_for_log(ready, 30.0), proc.log()
+        assert proc.wait_for_log(ready, 60.0), proc.log()
+        time.sleep(0.1)  # the log line comes just before the spin loop
         assert proc.proc.poll() is None, proc.log()
         os.kill(proc.pid, sig)
         code = proc.proc.wait(15)

@@ -81,6 +81,7 @@ def _wait_for_topic(
 ) -> tuple[str, list[Any]] | None:
     """Type of ``topic`` and its publishers' offered QoS, once a publisher is seen."""
     deadline = None if timeout is None else time.monotonic() + timeout
+    print(f"waiting for a publisher of {topic} ...", file=sys.stderr, flush=True)
     while not stop.stopped:
         infos = rt.get_publishers_info(node, topic)
         types = sorted({i.topic_type for i in infos})
@@ -200,9 +201,9 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     p_list.add_argument(
         "--spin-time",
         type=positive_float,
-        default=1.0,
+        default=2.0,
         metavar="S",
-        help="minimum seconds to wait for discovery (default 1.0)",
+        help="minimum seconds to wait for discovery (default 2.0)",
     )
     p_list.set_defaults(_topic_run=_run_list)
 
