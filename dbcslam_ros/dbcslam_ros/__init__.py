@@ -1,4 +1,4 @@
-"""ROS 2 adapters of DBC-SLAM: node runtime (rclpy or Cyclone DDS), bags, CLI, filter node.
+"""ROS 2 adapters of DBC-SLAM on rclpy: filter node, bags, CLI, rclpy helpers.
 
 Heavy submodules (runtime, bag, cli, filter_node) are imported on use, so `import dbcslam_ros`
 stays cheap and does not start any middleware.

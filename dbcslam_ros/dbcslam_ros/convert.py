@@ -1,7 +1,7 @@
 """Conversions between ROS 2 messages and dbcslam_core values (no math beyond unit plumbing).
 
-Message classes come from :func:`dbcslam_ros.runtime.message_class`, so the same code builds
-rclpy messages on a ROS 2 machine and the generated Cyclone DDS classes here.
+Message classes are rclpy's (the real message packages), looked up by type name with
+:func:`dbcslam_ros.runtime.message_class`.
 
 Frames and conventions (REP-103, see the README): planar poses travel as geometry_msgs poses
 with z = 0 and a yaw-only quaternion; covariances are 6x6 row-major over (x, y, z, roll,

@@ -17,6 +17,10 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.node import Node
+
 from dbcslam_ros import runtime as rt
 
 __all__ = ["Listener", "Talker", "listener_main", "main", "talker_main"]
@@ -24,12 +28,13 @@ __all__ = ["Listener", "Talker", "listener_main", "main", "talker_main"]
 DEFAULT_SCENARIO = "scenario: edge\ndt: 0.01\n"
 
 
-class Talker:
+class Talker(Node):
     """Publishes a counter string at a rate plus one latched scenario string."""
 
-    def __init__(self, node: Any) -> None:
-        self.node = node
-        desc = rt.ParameterDescriptor
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("talker", **kwargs)
+        node = self
+        desc = ParameterDescriptor
         self.rate_hz = float(
             node.declare_parameter(
                 "rate_hz", 10.0, desc(description="publish rate of chatter, Hz")
@@ -65,7 +70,7 @@ class Talker:
             return
         self.sent += 1
         self.pub.publish(self.string_cls(data=f"hello {self.sent}"))
-        self.node.get_logger().info(f"sent 'hello {self.sent}'", throttle_duration_sec=1.0)
+        self.get_logger().info(f"sent 'hello {self.sent}'", throttle_duration_sec=1.0)  # type: ignore[no-untyped-call]
 
     @property
     def done(self) -> bool:
@@ -73,16 +78,17 @@ class Talker:
         return bool(self.count) and self.sent >= self.count
 
 
-class Listener:
+class Listener(Node):
     """Logs the chatter and latched scenario strings it receives."""
 
-    def __init__(self, node: Any) -> None:
-        self.node = node
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("listener", **kwargs)
+        node = self
         self.count = int(
             node.declare_parameter(
                 "count",
                 0,
-                rt.ParameterDescriptor(description="exit after this many messages (0: never)"),
+                ParameterDescriptor(description="exit after this many messages (0: never)"),
             ).value
         )
         scen_topic = str(node.declare_parameter("scenario_topic", "/demo/scenario").value)
@@ -91,16 +97,17 @@ class Listener:
         self.scenario: str | None = None
         node.create_subscription(cls, "chatter", self.on_chatter, rt.qos_profile("default"))
         node.create_subscription(cls, scen_topic, self.on_scenario, rt.qos_profile("latched"))
+        self.get_logger().info(f"listening on chatter and {scen_topic}")  # type: ignore[no-untyped-call]
 
     def on_chatter(self, msg: Any) -> None:
         """Record and log one chatter message."""
         self.received.append(str(msg.data))
-        self.node.get_logger().info(f"I heard: '{msg.data}'")
+        self.get_logger().info(f"I heard: '{msg.data}'")  # type: ignore[no-untyped-call]
 
     def on_scenario(self, msg: Any) -> None:
         """Record and log the latched scenario."""
         self.scenario = str(msg.data)
-        self.node.get_logger().info(f"scenario: {msg.data!r}")
+        self.get_logger().info(f"scenario: {msg.data!r}")  # type: ignore[no-untyped-call]
 
     @property
     def done(self) -> bool:
@@ -109,17 +116,20 @@ class Listener:
 
 
 def _run(kind: str, args: Sequence[str] | None) -> int:
-    rt.init(args)
-    node = rt.Node(kind)
-    app: Talker | Listener = Talker(node) if kind == "talker" else Listener(node)
+    rt.init(list(args) if args is not None else sys.argv)
+    node: Talker | Listener = Talker() if kind == "talker" else Listener()
+    app = node
     try:
         while not app.done:
             rt.spin_once(node, timeout_sec=0.1)
-        node.get_logger().info("done")
+        node.get_logger().info("done")  # type: ignore[no-untyped-call]
     except (KeyboardInterrupt, rt.ExternalShutdownException):
         pass
+    except RCLError:
+        if rt.ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
     finally:
-        node.destroy_node()
+        node.destroy_node()  # type: ignore[no-untyped-call]
         rt.try_shutdown()
     return 0
 

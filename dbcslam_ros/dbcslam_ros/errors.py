@@ -26,7 +26,7 @@ class UsageError(DbcSlamRosError):
 
 
 class RuntimeBackendError(DbcSlamRosError):
-    """The node runtime cannot provide the requested backend or middleware operation."""
+    """The middleware (rclpy / the RMW) cannot do what was asked."""
 
 
 class MessageTypeError(DbcSlamRosError):

@@ -27,11 +27,19 @@ from __future__ import annotations
 import sys
 import time
 from collections import Counter, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rclpy
+import rclpy.logging
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.utilities import ok, try_shutdown
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.extensions import ModelExtension
@@ -50,14 +58,18 @@ from dbcslam_ros.convert import (
     yaw_to_quaternion,
 )
 from dbcslam_ros.errors import ParameterError
+from dbcslam_ros.ros_context import init_ros
 from dbcslam_ros.session import FilterSession, StampedEstimate
 
 __all__ = [
+    "INPUT_TOPICS",
     "LIVE_PARTICLES",
     "OUTPUT_TYPES",
     "PARAMETERS",
+    "FilterCore",
     "FilterNode",
     "build_config",
+    "coerce_params",
     "live_particles",
     "load_extensions",
     "main",
@@ -187,17 +199,60 @@ def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:
     return FilterConfig.preset(kind, **overrides)
 
 
-class FilterNode:
-    """Wires runtime subscriptions and publishers around a FilterSession."""
+#: Input topics (type, FilterCore method), in subscription order: inputs before the pose, so
+#: an executor serving subscriptions in creation order hands over a step's inputs first.
+INPUT_TOPICS: dict[str, tuple[str, str]] = {
+    "/scenario": ("std_msgs/msg/String", "on_scenario"),
+    "/object/wrench": ("geometry_msgs/msg/WrenchStamped", "on_wrench"),
+    "/joint_states": ("sensor_msgs/msg/JointState", "on_joints"),
+    "/pusher/wrench": ("geometry_msgs/msg/WrenchStamped", "on_pusher_wrench"),
+    "/object/pose": ("geometry_msgs/msg/PoseStamped", "on_pose"),
+}
 
-    def __init__(self, node: Any) -> None:
-        self.node = node
-        self.log = node.get_logger()
-        desc = rt.ParameterDescriptor
-        self.params: dict[str, Any] = {
-            name: node.declare_parameter(name, default, desc(description=text)).value
-            for name, (default, text) in PARAMETERS.items()
-        }
+
+def coerce_params(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """All filter parameters: :data:`PARAMETERS` defaults with ``overrides`` converted to the
+    declared types (``"true"``/``"false"`` for booleans), as offline tools pass them.
+
+    Raises:
+        ParameterError: unknown name, or a value that does not convert.
+    """
+    unknown = sorted(set(overrides) - set(PARAMETERS))
+    if unknown:
+        msg = f"unknown filter parameter(s) {unknown}: expected some of {sorted(PARAMETERS)}"
+        raise ParameterError(msg)
+    params = {name: default for name, (default, _text) in PARAMETERS.items()}
+    for name, value in overrides.items():
+        default = PARAMETERS[name][0]
+        try:
+            if isinstance(default, bool):
+                params[name] = value if isinstance(value, bool) else str(value).lower() == "true"
+            elif isinstance(default, int):
+                params[name] = int(value)
+            elif isinstance(default, float):
+                params[name] = float(value)
+            else:
+                params[name] = str(value)
+        except (TypeError, ValueError) as err:
+            msg = f"filter parameter {name} = {value!r}: expected a {type(default).__name__}"
+            raise ParameterError(msg) from err
+    return params
+
+
+class FilterCore:
+    """The filter node's behaviour without ROS: decoded input messages in (the ``on_*``
+    methods, :meth:`process_pending`), output messages out through ``publish(topic, msg)``.
+
+    :class:`FilterNode` wires it to rclpy; offline replay (:mod:`dbcslam_ros.replay`) calls
+    the same methods in bag order, so live and offline run the same code.
+    """
+
+    def __init__(
+        self, params: Mapping[str, Any], publish: Callable[[str, Any], None], logger: Any
+    ) -> None:
+        self.log = logger
+        self._publish_msg = publish
+        self.params: dict[str, Any] = dict(params)
         self._check_params()
         self.frame = str(self.params["frame_id"])
         self.session: FilterSession | None = None
@@ -219,42 +274,6 @@ class FilterNode:
         self._exceed_in_row = 0
         self._rate_window: deque[float] = deque()
         self._last_marker_ns: int | None = None
-
-        sensor = rt.qos_profile("sensor_data", depth=50)
-        cls = rt.message_class
-        self.pubs = {
-            topic: node.create_publisher(cls(type_name), topic, _reliable())
-            for topic, type_name in OUTPUT_TYPES.items()
-        }
-        # Inputs before the pose: a backend that serves subscriptions in creation order then
-        # hands over the inputs of a step before the pose that ends it.
-        self.subs = [
-            node.create_subscription(
-                cls("std_msgs/msg/String"),
-                "/scenario",
-                self.on_scenario,
-                rt.qos_profile("latched"),
-            ),
-            node.create_subscription(
-                cls("geometry_msgs/msg/WrenchStamped"), "/object/wrench", self.on_wrench, sensor
-            ),
-            node.create_subscription(
-                cls("sensor_msgs/msg/JointState"), "/joint_states", self.on_joints, sensor
-            ),
-            node.create_subscription(
-                cls("geometry_msgs/msg/WrenchStamped"),
-                "/pusher/wrench",
-                self.on_pusher_wrench,
-                sensor,
-            ),
-            node.create_subscription(
-                cls("geometry_msgs/msg/PoseStamped"), "/object/pose", self.on_pose, sensor
-            ),
-        ]
-        self.process_timer = node.create_timer(0.001, self.process_pending)
-        self.timer = node.create_timer(
-            float(self.params["diagnostics_period"]), self.publish_diagnostics
-        )
         path = str(self.params["scenario_file"])
         if path:
             try:
@@ -262,6 +281,10 @@ class FilterNode:
             except (OSError, DbcSlamError) as err:
                 msg = f"cannot load scenario_file {path!r}: {err}"
                 raise ParameterError(msg) from err
+
+    def callbacks(self) -> dict[str, Callable[[Any], None]]:
+        """``{input topic: method}`` in :data:`INPUT_TOPICS` order."""
+        return {topic: getattr(self, method) for topic, (_t, method) in INPUT_TOPICS.items()}
 
     def _check_params(self) -> None:
         p = self.params
@@ -471,12 +494,12 @@ class FilterNode:
             self.last_estimate = None
             return
         for topic, m in msgs.items():  # pose first (dict order)
-            self.pubs[topic].publish(m)
+            self._publish_msg(topic, m)
             if topic == "/dbcslam/pose":
                 self.latencies.append(time.monotonic() - received)
         if int(self.params["marker_particles"]) > 0 and self._marker_due(res.stamp_ns):
             try:
-                self.pubs["/dbcslam/markers"].publish(self._markers(res))
+                self._publish_msg("/dbcslam/markers", self._markers(res))
             except (ValueError, DbcSlamError) as err:
                 self.not_published["markers"] += 1
                 self.log.warning(f"markers not published: {err}", throttle_duration_sec=5.0)
@@ -657,7 +680,7 @@ class FilterNode:
             text = "running"
         stamp_ns = self.last_estimate.stamp_ns if self.last_estimate else 0
         status = cls("diagnostic_msgs/msg/DiagnosticStatus")(
-            level=bytes([level]) if rt.BACKEND == "rclpy" else level,
+            level=bytes([level]),
             name="dbcslam_filter",
             message=text,
             hardware_id="dbcslam",
@@ -666,31 +689,77 @@ class FilterNode:
             ],
         )
         header = cls("std_msgs/msg/Header")(stamp=ns_to_stamp(stamp_ns), frame_id="")
-        self.pubs["/diagnostics"].publish(
-            cls("diagnostic_msgs/msg/DiagnosticArray")(header=header, status=[status])
+        self._publish_msg(
+            "/diagnostics",
+            cls("diagnostic_msgs/msg/DiagnosticArray")(header=header, status=[status]),
         )
 
 
-def _reliable() -> Any:
-    return rt.qos_profile("default", depth=100)
+class FilterNode(Node):
+    """The ``dbcslam_filter`` rclpy node: declares the parameters, subscribes to the contract
+    inputs and publishes the outputs of a :class:`FilterCore`.
+
+    Raises:
+        ParameterError: a parameter value is invalid (``main`` exits 2).
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("dbcslam_filter", **kwargs)
+        params = {
+            name: self.declare_parameter(
+                name, default, ParameterDescriptor(description=text)
+            ).value
+            for name, (default, text) in PARAMETERS.items()
+        }
+        reliable = rt.qos_profile("default", depth=100)
+        self.pubs = {
+            topic: self.create_publisher(rt.message_class(type_name), topic, reliable)
+            for topic, type_name in OUTPUT_TYPES.items()
+        }
+        logger = self.get_logger()  # type: ignore[no-untyped-call]
+        self.core = FilterCore(params, self._publish, logger)
+        sensor = rt.qos_profile("sensor_data", depth=50)
+        callbacks = self.core.callbacks()
+        self.subs = [
+            self.create_subscription(
+                rt.message_class(type_name),
+                topic,
+                callbacks[topic],
+                rt.qos_profile("latched") if topic == "/scenario" else sensor,
+            )
+            for topic, (type_name, _m) in INPUT_TOPICS.items()
+        ]
+        self.process_timer = self.create_timer(0.001, self.core.process_pending)
+        self.diagnostics_timer = self.create_timer(
+            float(params["diagnostics_period"]), self.core.publish_diagnostics
+        )
+
+    def _publish(self, topic: str, msg: Any) -> None:
+        self.pubs[topic].publish(msg)
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the filter node (Jazzy node shape); exit 2 on bad parameters."""
-    rt.init(args=list(args) if args is not None else sys.argv)
-    node = rt.Node("dbcslam_filter")
+    init_ros(list(args) if args is not None else sys.argv)
+    node: Node | None = None
     code = 0
     try:
-        FilterNode(node)
-        rt.spin(node)
-    except (KeyboardInterrupt, rt.ExternalShutdownException):
+        node = FilterNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ParameterError as err:
-        node.get_logger().error(f"dbcslam_filter: {err}")
+    except RCLError:
+        if ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
+    except (ParameterError, ParameterException) as err:
+        # ours (bad value) or rclpy's (e.g. -p particles:=many: wrong type for the declaration)
+        log = rclpy.logging.get_logger("dbcslam_filter")
+        log.error(f"dbcslam_filter: {err}")
         code = 2
     finally:
-        node.destroy_node()
-        rt.try_shutdown()
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
     return code
 
 

@@ -162,13 +162,11 @@ def resolve_data(data: str | Path) -> list[Path]:
 def filter_uses_pusher_wrench(params: dict[str, Any] | None = None) -> bool:
     """True when the filter node with these parameters uses ``/pusher/wrench`` as a force
     observation (it subscribes to it and its ``use_pusher_wrench`` parameter is on)."""
-    from dbcslam_ros.filter_node import FilterNode
-    from dbcslam_ros.replay import _OfflineNode
+    from dbcslam_ros.filter_node import INPUT_TOPICS, coerce_params
 
-    node = _OfflineNode(params or {}, lambda _topic, _msg: None)
-    filt = FilterNode(node)
-    use = filt.params.get("use_pusher_wrench", True)
-    return "/pusher/wrench" in node.callbacks and str(use).lower() not in ("false", "0")
+    return "/pusher/wrench" in INPUT_TOPICS and bool(
+        coerce_params(params or {})["use_pusher_wrench"]
+    )
 
 
 def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[str, Any]]:

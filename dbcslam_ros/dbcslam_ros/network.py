@@ -17,12 +17,14 @@ What it does, in this order (the first rule that applies wins):
    the interface 127.0.0.1 and shared memory, no built-in transports, no multicast, and
    discovers peers by unicast to 127.0.0.1 only: every socket of the process is bound to
    127.0.0.1 (measured; ``tests/ros/test_network_loopback.py`` checks it on running nodes).
-   ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is left as the user has it. It is not set to
-   ``LOCALHOST`` here on purpose: with that range ``rmw_fastrtps_cpp`` (Jazzy, 8.4) adds a
-   wildcard metatraffic locator to the participant, and Fast DDS 2.14 then opens output
-   sockets on 0.0.0.0 and on the machine's external address although the profile restricts
-   the transports to 127.0.0.1 (measured with ``/proc/<pid>/net/udp``). The profile alone
-   already confines discovery and data to this machine.
+   ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` is replaced by ``SUBNET`` for this process
+   (and the ones it starts), on purpose: with LOCALHOST ``rmw_fastrtps_cpp`` (Jazzy, 8.4)
+   adds a wildcard metatraffic locator to the participant, and Fast DDS 2.14 then opens
+   output sockets on 0.0.0.0 and on the machine's external address although the profile
+   restricts the transports to 127.0.0.1 (measured with ``/proc/<pid>/net/udp``). With the
+   profile, SUBNET adds nothing (no multicast, peers only 127.0.0.1): the profile alone
+   confines discovery and data to this machine, and LOCALHOST peers (127.0.0.1) still find
+   our nodes. Other ranges (``OFF``, ``SUBNET``) are kept.
 
 Environment values are validated: a ``DBCSLAM_NETWORK`` other than ``loopback``/``system``, or
 a profile file that does not exist, raises :class:`~dbcslam_ros.errors.UsageError` naming the
@@ -78,9 +80,9 @@ def loopback_profile_path() -> Path:
 def apply_loopback_defaults(environ: MutableMapping[str, str] | None = None) -> NetworkSetup:
     """Set the loopback-only DDS defaults in ``environ`` (default: ``os.environ``).
 
-    Call before ``rclpy.init``. Never overrides a value the user set (see the module
-    docstring for the rules). Raises UsageError on an invalid ``DBCSLAM_NETWORK`` or a
-    missing profile file.
+    Call before ``rclpy.init``. Never overrides a value the user set, except a LOCALHOST
+    discovery range under the shipped profile (see the module docstring for the rules).
+    Raises UsageError on an invalid ``DBCSLAM_NETWORK`` or a missing profile file.
     """
     env = os.environ if environ is None else environ
     mode = env.get(NETWORK_MODE_VAR, "").strip().lower() or "loopback"
@@ -112,6 +114,8 @@ def apply_loopback_defaults(environ: MutableMapping[str, str] | None = None) -> 
         raise UsageError(msg)
     for var in PROFILE_VARS:
         env[var] = str(profile)
+    if env.get(DISCOVERY_RANGE_VAR, "").strip().upper() == "LOCALHOST":
+        env[DISCOVERY_RANGE_VAR] = "SUBNET"  # see rule 4: LOCALHOST would leave loopback
     return _setup(env, "shipped_profile")
 
 

@@ -2,9 +2,10 @@
 
 ``dbcslam replay BAG -o OUTDIR`` (see :mod:`dbcslam_ros.cli.commands.replay`) calls
 :func:`replay_bag`. The filter is the live node's own code (:class:`~dbcslam_ros.filter_node.
-FilterNode`, hence the same :class:`~dbcslam_ros.session.FilterSession`, input validation,
-gating and message building) driven by an in-process stand-in for the ROS node: every input
-message of the bag is handed to the node's callback in log-time order, and each
+FilterCore`, the object the live :class:`~dbcslam_ros.filter_node.FilterNode` wraps: the same
+:class:`~dbcslam_ros.session.FilterSession`, input validation, gating and message building),
+without any ROS node: every input message of the bag is handed to the core's callback for its
+topic in log-time order, and each
 ``/object/pose`` is processed at once (no backlog, no dropped poses, no wall-clock effects).
 
 Output bag (a rosbag2 MCAP directory, OUTDIR):
@@ -34,7 +35,7 @@ import math
 import shutil
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -155,25 +156,10 @@ def load_filter_params(path: str | Path) -> dict[str, Any]:
     return params
 
 
-# -- an in-process stand-in for the node runtime ---------------------------------------------
-class _Param:
-    def __init__(self, value: Any) -> None:
-        self.value = value
-
-
-class _Publisher:
-    def __init__(self, topic: str, sink: Callable[[str, Any], None]) -> None:
-        self.topic = topic
-        self._sink = sink
-
-    def publish(self, msg: Any) -> None:
-        self._sink(self.topic, msg)
-
-    def get_subscription_count(self) -> int:
-        return 1
-
-
+# -- the offline logger -----------------------------------------------------------------------
 class _Logger:
+    """Counts warnings (reported in ``metrics.json``) instead of printing them."""
+
     def __init__(self) -> None:
         self.warnings: dict[str, int] = {}
 
@@ -185,49 +171,6 @@ class _Logger:
 
     def error(self, msg: str, **kwargs: Any) -> None:
         self.warning(msg, **kwargs)
-
-
-class _OfflineNode:
-    """The subset of the node API FilterNode uses; publications go to ``sink``."""
-
-    def __init__(self, params: Mapping[str, Any], sink: Callable[[str, Any], None]) -> None:
-        self._params = dict(params)
-        self._sink = sink
-        self._logger = _Logger()
-        self.callbacks: dict[str, Callable[[Any], None]] = {}
-
-    def declare_parameter(self, name: str, default: Any, _descriptor: Any = None) -> _Param:
-        if name not in self._params:
-            return _Param(default)
-        value = self._params[name]
-        try:
-            if isinstance(default, bool):
-                value = value if isinstance(value, bool) else str(value).lower() == "true"
-            elif isinstance(default, int):
-                value = int(value)
-            elif isinstance(default, float):
-                value = float(value)
-            elif isinstance(default, str):
-                value = str(value)
-        except (TypeError, ValueError) as err:
-            msg = f"filter parameter {name} = {value!r}: expected a {type(default).__name__}"
-            raise UsageError(msg) from err
-        return _Param(value)
-
-    def create_publisher(self, _cls: Any, topic: str, _qos: Any) -> _Publisher:
-        return _Publisher(topic, self._sink)
-
-    def create_subscription(
-        self, _cls: Any, topic: str, callback: Callable[[Any], None], _qos: Any, **_kw: Any
-    ) -> object:
-        self.callbacks[topic] = callback
-        return object()
-
-    def create_timer(self, _period: float, _callback: Callable[[], None]) -> object:
-        return object()
-
-    def get_logger(self) -> _Logger:
-        return self._logger
 
 
 # -- replay ----------------------------------------------------------------------------------
@@ -294,7 +237,7 @@ def replay_bag(
     """
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.errors import ParameterError
-    from dbcslam_ros.filter_node import OUTPUT_TYPES, FilterNode
+    from dbcslam_ros.filter_node import OUTPUT_TYPES, FilterCore, coerce_params
 
     opts = options or ReplayOptions()
     src = Path(bag)
@@ -339,11 +282,12 @@ def replay_bag(
             }
             for t in copied.values():
                 writer.add_topic(t.name, t.msgtype, t.offered_qos or (contract_qos(t.name),))
-            node = _OfflineNode(params, sink)
+            logger = _Logger()
             try:
-                filt = FilterNode(node)
+                filt = FilterCore(coerce_params(params), sink, logger)
             except ParameterError as err:
                 raise UsageError(str(err)) from err
+            callbacks = filt.callbacks()
             diag_period_ns = int(float(filt.params["diagnostics_period"]) * NS)
             next_diag: int | None = None
             progress = _Progress(opts.progress, src.name, n_poses)
@@ -351,7 +295,7 @@ def replay_bag(
             started = time.perf_counter()
             for raw, obj in reader.decoded(copied):
                 writer.write(raw.topic, raw.data, raw.log_time_ns, raw.publish_time_ns)
-                callback = node.callbacks.get(raw.topic)
+                callback = callbacks.get(raw.topic)
                 if callback is None:
                     continue
                 callback(obj)
@@ -377,7 +321,7 @@ def replay_bag(
     rejected = dict(session.rejected) if session is not None else {}
     if filt.rejected_before_scenario:
         rejected["before_scenario"] = filt.rejected_before_scenario
-    warnings = sorted(node.get_logger().warnings.items(), key=lambda kv: -kv[1])
+    warnings = sorted(logger.warnings.items(), key=lambda kv: -kv[1])
     if estimates == 0:
         why = "; ".join(f"{text} (x{n})" for text, n in warnings[:3]) or "no warnings"
         msg = (

@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
 
 from dbcslam_core.scenario import Scenario
 
@@ -212,18 +214,21 @@ def make_source(
     return _pybullet_source(scenario, params_file, overrides)
 
 
-class SimNode:
-    """Publishes a :class:`TickSource` on the contract topics (see the module docstring)."""
+class SimNode(Node):
+    """The ``sim_publisher`` rclpy node: publishes a :class:`TickSource` on the contract
+    topics (see the module docstring)."""
 
-    def __init__(self, node: Any, source: TickSource | None = None) -> None:
+    def __init__(self, source: TickSource | None = None, **kwargs: Any) -> None:
         from dbcslam_ros import runtime as rt
 
+        super().__init__("sim_publisher", **kwargs)
         self.rt = rt
-        self.node = node
-        self.log = node.get_logger()
-        desc = rt.ParameterDescriptor
+        node = self
+        self.log = self.get_logger()  # type: ignore[no-untyped-call]
         self.params: dict[str, Any] = {
-            name: node.declare_parameter(name, default, desc(description=text)).value
+            name: self.declare_parameter(
+                name, default, ParameterDescriptor(description=text)
+            ).value
             for name, (default, text) in PARAMETERS.items()
         }
         p = self.params
@@ -292,10 +297,13 @@ class SimNode:
         deadline = time.monotonic() + limit
         pub = self.pubs["/object/pose"]
         while time.monotonic() < deadline and pub.get_subscription_count() < wanted:
-            self.rt.spin_once(self.node, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
+            self.rt.spin_once(self, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
         if pub.get_subscription_count() > 0:
             # Give the reader's side of the match a moment to complete as well.
-            self.rt.spin_once(self.node, timeout_sec=0.2)
+            # (Fast DDS: the reader learns of the writer up to ~1 s after the writer of it)
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                self.rt.spin_once(self, timeout_sec=0.05)
 
     def run(self) -> None:
         """Publish every tick (paced in real time unless fast), then flush reliable topics."""
@@ -378,21 +386,29 @@ class SimNode:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of the simulator node; exit code 0 after the run, 2 on bad parameters."""
+    from rclpy._rclpy_pybind11 import RCLError
+
     from dbcslam_ros import runtime as rt
+    from dbcslam_ros.ros_context import init_ros
     from sim_publisher.errors import ParamError
 
-    rt.init(args=list(args) if args is not None else sys.argv)
-    node = rt.Node("sim_publisher")
+    init_ros(list(args) if args is not None else sys.argv)
+    node: SimNode | None = None
     code = 0
     try:
-        SimNode(node).run()
+        node = SimNode()
+        node.run()
     except (KeyboardInterrupt, rt.ExternalShutdownException):
         pass
+    except RCLError:
+        if rt.ok():  # not the signal-vs-wait-set race of a shutdown
+            raise
     except (ValueError, ParamError) as err:
-        node.get_logger().error(f"sim_publisher: bad parameters: {err}")
+        rt.get_logger("sim_publisher").error(f"sim_publisher: bad parameters: {err}")
         code = 2
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()  # type: ignore[no-untyped-call]
         rt.try_shutdown()
     return code
 

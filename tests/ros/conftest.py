@@ -1,7 +1,7 @@
 """Shared fixtures of the dbcslam_ros tests: runtime nodes in-process and node processes.
 
 Every process started here inherits the per-run random ``ROS_DOMAIN_ID`` of tests/conftest.py
-and the loopback-only default DDS configuration; it is stopped by PID (SIGTERM, then SIGKILL)
+and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``; it is stopped by PID (SIGTERM, then SIGKILL)
 in the fixture finalizer even when the test fails.
 """
 
@@ -62,7 +62,7 @@ class NodeProcess:
 
 
 class ProcessGroup:
-    """Starts ``python -m module args`` processes on the dds backend and stops them by PID."""
+    """Starts ``python -m module args`` node processes (real rclpy) and stops them by PID."""
 
     def __init__(self, log_dir: Path) -> None:
         self.log_dir = log_dir
@@ -70,7 +70,7 @@ class ProcessGroup:
 
     def start(self, module: str, *args: str, env: dict[str, str] | None = None) -> NodeProcess:
         full_env = dict(os.environ)
-        full_env["DBCSLAM_RUNTIME"] = "dds"
+        full_env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         full_env["PYTHONUNBUFFERED"] = "1"
         full_env.update(env or {})
         idx = len(self.started)
@@ -99,7 +99,7 @@ class ProcessGroup:
 @pytest.fixture
 def node_process(tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
     """Factory ``start(module, *args, env=None) -> NodeProcess`` running
-    ``python -m module args`` on the dds backend; all are stopped at teardown."""
+    ``python -m module args`` (real rclpy); all are stopped at teardown."""
     group = ProcessGroup(tmp_path)
     yield group.start
     group.stop_all()
@@ -120,8 +120,6 @@ def rt_context() -> Iterator[Callable[..., Any]]:
     ``args`` are ROS arguments for this init (only the first call's args apply). Nodes and the
     runtime are destroyed at teardown.
     """
-    if rt.BACKEND != "dds":
-        pytest.skip("in-process runtime tests need the dds backend")
     nodes: list[Any] = []
     state = {"inited": False}
 

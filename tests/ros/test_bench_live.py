@@ -18,8 +18,6 @@ from dbcslam_ros import runtime as rt
 
 @pytest.fixture(scope="module")
 def live_edge() -> bl.LiveResult:
-    if rt.BACKEND != "dds":
-        pytest.skip("in-process runtime tests need the dds backend")
     rt.init(["test_bench_live"])
     try:
         return bl.run_live("edge", particles=20, duration=0.5, engine="core")

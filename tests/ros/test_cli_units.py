@@ -151,3 +151,34 @@ def test_clock_message_carries_the_bag_time() -> None:
     _publish_clock(Pub(), 12_345_678_901)
     msg = jazzy_typestore().deserialize_cdr(sent[0], "rosgraph_msgs/msg/Clock")
     assert (msg.clock.sec, msg.clock.nanosec) == (12, 345_678_901)
+
+
+@pytest.mark.parametrize(
+    ("topics", "internal", "asked"),
+    [
+        ([], False, ["/chatter"]),
+        ([], True, ["/chatter", "/parameter_events", "/rosout"]),
+        (["/rosout"], False, ["/rosout"]),
+    ],
+)
+def test_record_leaves_out_ros_internal_topics_unless_asked(
+    topics: list[str], internal: bool, asked: list[str]
+) -> None:
+    from dbcslam_ros.cli.commands.record import _Recorder
+
+    seen: list[str] = []
+
+    class GraphOnly:
+        def get_topic_names_and_types(self, _node: object) -> list[tuple[str, list[str]]]:
+            return [
+                ("/chatter", ["std_msgs/msg/String"]),
+                ("/parameter_events", ["rcl_interfaces/msg/ParameterEvent"]),
+                ("/rosout", ["rcl_interfaces/msg/Log"]),
+            ]
+
+        def get_publishers_info(self, _node: object, topic: str) -> list[object]:
+            seen.append(topic)
+            return []  # no publisher yet: nothing is subscribed
+
+    _Recorder(GraphOnly(), None, None, topics, internal=internal).discover()
+    assert sorted(seen) == asked

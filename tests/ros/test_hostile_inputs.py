@@ -35,7 +35,6 @@ def ros_env() -> dict[str, str]:
     for var in (*PROFILE_VARS, DISCOVERY_RANGE_VAR, NETWORK_MODE_VAR):
         env.pop(var, None)
     env["ROS_DOMAIN_ID"] = str(random.Random().randint(120, 200))
-    env["DBCSLAM_RUNTIME"] = "rclpy"
     env["PYTHONUNBUFFERED"] = "1"
     return env
 

@@ -48,11 +48,18 @@ def test_default_uses_the_shipped_profile() -> None:
     assert "<useBuiltinTransports>false</useBuiltinTransports>" in text
 
 
-@pytest.mark.parametrize("rng", ["SUBNET", "LOCALHOST", "OFF"])
+@pytest.mark.parametrize("rng", ["SUBNET", "OFF"])
 def test_user_discovery_range_is_kept(rng: str) -> None:
     env = {DISCOVERY_RANGE_VAR: rng}
     apply_loopback_defaults(env)
     assert env[DISCOVERY_RANGE_VAR] == rng
+
+
+def test_localhost_range_becomes_subnet_under_the_shipped_profile() -> None:
+    """LOCALHOST makes rmw_fastrtps add a wildcard locator (sockets off loopback)."""
+    env = {DISCOVERY_RANGE_VAR: "LOCALHOST"}
+    setup = apply_loopback_defaults(env)
+    assert setup.mode == "shipped_profile" and env[DISCOVERY_RANGE_VAR] == "SUBNET"
 
 
 @pytest.mark.parametrize("var", PROFILE_VARS)
@@ -161,12 +168,13 @@ _LISTENER = textwrap.dedent(
 
 @pytest.fixture
 def clean_env() -> dict[str, str]:
-    """The test environment with the network variables unset, on its own domain."""
+    """The test environment with the network variables unset (but the LOCALHOST range the
+    ROS docs advise), on its own domain."""
     env = dict(os.environ)
-    for var in (*PROFILE_VARS, DISCOVERY_RANGE_VAR, NETWORK_MODE_VAR, "RMW_IMPLEMENTATION"):
+    for var in (*PROFILE_VARS, NETWORK_MODE_VAR, "RMW_IMPLEMENTATION"):
         env.pop(var, None)
+    env[DISCOVERY_RANGE_VAR] = "LOCALHOST"  # as the ROS 2 docs advise: must stay on loopback
     env["ROS_DOMAIN_ID"] = str(random.Random().randint(120, 200))
-    env["DBCSLAM_RUNTIME"] = "rclpy"  # the rclpy path (ignored once it is the only one)
     env["PYTHONUNBUFFERED"] = "1"
     return env
 

@@ -54,7 +54,7 @@ def test_unknown_scenario_is_an_argparse_error() -> None:
 
 
 def test_short_core_run_exits_0() -> None:
-    env = dict(os.environ, DBCSLAM_RUNTIME="dds")
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     proc = subprocess.run(
         [
             sys.executable, "-m", "dbcslam_ros.cli", "sim", "--scenario", "edge", "--engine",

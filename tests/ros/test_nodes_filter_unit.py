@@ -1,4 +1,5 @@
-"""FilterNode in-process on a fake node: configuration, backlog policy, failure handling.
+"""The filter node's core (FilterCore) in-process, without ROS: configuration, backlog
+policy, failure handling.
 
 No DDS: the fake node records publications; callbacks are called directly, so the queueing
 and catch-up rules are checked deterministically.
@@ -8,7 +9,6 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -37,41 +37,23 @@ class FakeLogger:
         self.lines.append(("error", text))
 
 
-class FakePublisher:
-    def __init__(self, topic: str, sink: list[tuple[str, Any]]) -> None:
-        self.topic = topic
-        self.sink = sink
-
-    def publish(self, msg: Any) -> None:
-        self.sink.append((self.topic, msg))
-
-
 class FakeNode:
-    """The subset of the runtime Node that FilterNode uses."""
+    """Collects what a :class:`FilterCore` publishes; ``subs`` are its input callbacks."""
 
     def __init__(self, overrides: dict[str, Any] | None = None) -> None:
         self.overrides = overrides or {}
         self.logger = FakeLogger()
         self.published: list[tuple[str, Any]] = []
         self.subs: dict[str, Any] = {}
-        self.timers: list[tuple[float, Any]] = []
 
-    def get_logger(self) -> FakeLogger:
-        return self.logger
-
-    def declare_parameter(self, name: str, default: Any, _descriptor: Any = None) -> Any:
-        return SimpleNamespace(value=self.overrides.get(name, default))
-
-    def create_publisher(self, _cls: Any, topic: str, _qos: Any) -> FakePublisher:
-        return FakePublisher(topic, self.published)
-
-    def create_subscription(self, _cls: Any, topic: str, cb: Any, _qos: Any) -> Any:
-        self.subs[topic] = cb
-        return topic
-
-    def create_timer(self, period: float, cb: Any) -> Any:
-        self.timers.append((period, cb))
-        return cb
+    def build(self) -> fn.FilterCore:
+        core = fn.FilterCore(
+            fn.coerce_params(self.overrides),
+            lambda topic, msg: self.published.append((topic, msg)),
+            self.logger,
+        )
+        self.subs = core.callbacks()
+        return core
 
     def topics(self) -> list[str]:
         return [t for t, _ in self.published]
@@ -90,14 +72,14 @@ def traj() -> Any:
 
 
 @pytest.fixture
-def node(traj: Any) -> tuple[FakeNode, fn.FilterNode]:
+def node(traj: Any) -> tuple[FakeNode, fn.FilterCore]:
     fake = FakeNode({"particles": 30, "marker_particles": 5})
-    filt = fn.FilterNode(fake)
+    filt = fake.build()
     fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
     return fake, filt
 
 
-def _tick(node: tuple[FakeNode, fn.FilterNode], traj: Any, k: int, process: bool = True) -> None:
+def _tick(node: tuple[FakeNode, fn.FilterCore], traj: Any, k: int, process: bool = True) -> None:
     fake, filt = node
     stamp = T0 + k * NS // 100
     fx, fy = (float(v) for v in traj.u[k])
@@ -110,7 +92,7 @@ def _tick(node: tuple[FakeNode, fn.FilterNode], traj: Any, k: int, process: bool
 
 def test_poses_before_the_scenario_are_counted() -> None:
     fake = FakeNode()
-    filt = fn.FilterNode(fake)
+    filt = fake.build()
     fake.subs["/object/pose"](pose_stamped(T0, 0.0, 0.0))
     assert filt.rejected_before_scenario == 1
     filt.publish_diagnostics()
@@ -229,7 +211,7 @@ def test_nan_inputs_do_not_reach_the_filter(node: Any, traj: Any) -> None:
 
 def test_particles_default_is_the_live_default_per_kind(traj: Any) -> None:
     fake = FakeNode()
-    filt = fn.FilterNode(fake)
+    filt = fake.build()
     fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
     assert filt.session is not None
     assert filt.session.config.particles == fn.live_particles("edge")
@@ -244,13 +226,13 @@ def _defaults() -> dict[str, Any]:
 @pytest.mark.parametrize("bad", [0, -2])
 def test_bad_particle_count_is_a_parameter_error(bad: int) -> None:
     with pytest.raises(fn.ParameterError, match="particles"):
-        fn.FilterNode(FakeNode({"particles": bad}))
+        FakeNode({"particles": bad}).build()
 
 
 @pytest.mark.parametrize(("period", "expected"), [(0.0, 19), (0.05, 4)])
 def test_markers_at_most_one_per_marker_period(traj: Any, period: float, expected: int) -> None:
     fake = FakeNode({"particles": 20, "marker_particles": 3, "marker_period": period})
-    filt = fn.FilterNode(fake)
+    filt = fake.build()
     fake.subs["/scenario"](_string(traj.scenario.to_yaml()))
     for k in range(20):  # estimates at 10 .. 190 ms
         _tick((fake, filt), traj, k)
@@ -259,12 +241,12 @@ def test_markers_at_most_one_per_marker_period(traj: Any, period: float, expecte
     assert fake.topics().count("/dbcslam/markers") == expected
 
 
-def _push_node(use: bool) -> tuple[FakeNode, fn.FilterNode, Any]:
+def _push_node(use: bool) -> tuple[FakeNode, fn.FilterCore, Any]:
     from dbcslam_core.synthetic import push_trajectory
 
     tr = push_trajectory(0)
     fake = FakeNode({"particles": 20, "use_pusher_wrench": use})
-    filt = fn.FilterNode(fake)
+    filt = fake.build()
     fake.subs["/scenario"](_string(tr.scenario.to_yaml()))
     return fake, filt, tr
 

@@ -20,11 +20,10 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from rclpy.executors import SingleThreadedExecutor
 
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import array_from_msg, stamp_to_ns
-
-pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
 
 INPUT_TYPES = {
     "/object/pose": "geometry_msgs/msg/PoseStamped",
@@ -71,7 +70,7 @@ def _subscribe_all(node: Any, rec: Recording, extra: dict[str, str]) -> list[Any
         if topic == "/scenario":
             qos = rt.qos_profile("latched")
         elif topic in SENSOR:
-            qos = rt.qos_profile("sensor_data", depth=100)
+            qos = rt.qos_profile("sensor_data", depth=1000)
         else:
             qos = rt.qos_profile("default", depth=1000)
 
@@ -90,18 +89,28 @@ def _record(
     until_s: float,
     graph_after: int,
 ) -> None:
-    """Spin until the sim exited and the filter had time to publish its last outputs."""
+    """Spin until the sim exited and nothing arrived for 1.5 s (the filter published its last
+    outputs and this listener, one callback per spin, caught up with its queues)."""
     sim, filt = procs
     deadline = time.monotonic() + until_s
-    sim_done_at: float | None = None
+    sim_done = False
+    total, quiet_since = -1, time.monotonic()
+    # one executor for the whole run: rclpy.spin_once(node) adds and removes the node (and
+    # rebuilds its wait set) on every call, too slow to keep up with a fast run
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     while time.monotonic() < deadline:
-        rt.spin_once(node, timeout_sec=0.02)
+        executor.spin_once(timeout_sec=0.02)
         if not rec.graph and len(rec.msgs["/dbcslam/pose"]) >= graph_after:
             rec.graph = {t: list(ts) for t, ts in rt.get_topic_names_and_types(node)}
-        if sim_done_at is None and sim.proc.poll() is not None:
-            sim_done_at = time.monotonic()
-        if sim_done_at is not None and time.monotonic() - sim_done_at > 1.5:
+        now_total = sum(len(v) for v in rec.msgs.values())
+        if now_total != total:
+            total, quiet_since = now_total, time.monotonic()
+        sim_done = sim_done or sim.proc.poll() is not None
+        if sim_done and time.monotonic() - quiet_since > 1.5:
             break
+    executor.remove_node(node)
+    executor.shutdown()
     rec.sim_code = sim.proc.poll()
     rec.filter_alive = filt.proc.poll() is None
     rec.sim_log = sim.log()

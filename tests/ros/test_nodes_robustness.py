@@ -16,8 +16,6 @@ import pytest
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import ns_to_stamp, pose_stamped, wrench_stamped
 
-pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
-
 NS = 1_000_000_000
 T0 = 100 * NS
 

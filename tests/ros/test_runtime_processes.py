@@ -7,10 +7,6 @@ import signal
 
 import pytest
 
-from dbcslam_ros import runtime as rt
-
-pytestmark = pytest.mark.skipif(rt.BACKEND != "dds", reason="needs the dds backend")
-
 
 def test_talker_and_listener_processes_talk(node_process) -> None:
     listener = node_process("dbcslam_ros.demo_nodes", "listener", "--ros-args", "-p", "count:=5")

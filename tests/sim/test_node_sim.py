@@ -84,11 +84,11 @@ def test_bad_source_requests_fail_clearly(kwargs: dict[str, Any], error: type) -
 
 @pytest.fixture
 def sim_process(tmp_path: Path) -> Iterator[Any]:
-    """Starts ``python -m sim_publisher.node`` (dds backend); stopped by PID at teardown."""
+    """Starts ``python -m sim_publisher.node`` (real rclpy); stopped by PID at teardown."""
     procs: list[subprocess.Popen[bytes]] = []
 
     def start(*ros_args: str) -> subprocess.Popen[bytes]:
-        env = dict(os.environ, DBCSLAM_RUNTIME="dds", PYTHONUNBUFFERED="1")
+        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
         log = (tmp_path / f"sim{len(procs)}.log").open("wb")
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim_publisher.node", "--ros-args", *ros_args],
@@ -114,8 +114,6 @@ def sim_process(tmp_path: Path) -> Iterator[Any]:
 def listener() -> Iterator[Any]:
     from dbcslam_ros import runtime as rt
 
-    if rt.BACKEND != "dds":
-        pytest.skip("needs the dds backend")
     rt.init(["test_node_sim"])
     node = rt.Node("test_node_sim_listener")
     yield node

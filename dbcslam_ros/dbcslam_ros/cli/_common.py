@@ -1,7 +1,8 @@
 """Helpers shared by the live-DDS subcommands: node lifecycle, stop signals, QoS mapping.
 
-The commands use the node runtime (:mod:`dbcslam_ros.runtime`): rclpy on a ROS 2 machine,
-otherwise the Cyclone DDS backend (loopback only unless configured otherwise).
+The commands run on rclpy (started through :func:`dbcslam_ros.ros_context.init_ros`, so on
+this machine only unless the user chose otherwise) with the helpers of
+:mod:`dbcslam_ros.runtime`.
 """
 
 from __future__ import annotations
@@ -106,7 +107,7 @@ def node_session(name: str) -> Iterator[tuple[Any, Any, StopSignal]]:
     """
     from dbcslam_ros import runtime as rt
 
-    rt.init(args=["dbcslam"])
+    rt.init(["dbcslam"], handle_signals=False)
     stop = StopSignal()
     node = None
     try:
@@ -127,7 +128,7 @@ def node_session(name: str) -> Iterator[tuple[Any, Any, StopSignal]]:
 
 
 def native_qos(rt: Any, qos: QoSProfile) -> Any:
-    """The backend's QoS object for a neutral profile (rclpy ``QoSProfile`` on rclpy)."""
+    """The rclpy ``QoSProfile`` of a neutral profile."""
     return rt.make_qos(qos.reliability, qos.durability, qos.history, qos.depth)
 
 

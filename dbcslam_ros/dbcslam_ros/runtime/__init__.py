@@ -1,63 +1,49 @@
-"""Node runtime of dbcslam_ros: node code is written once against this rclpy-shaped API.
+"""Small helpers on top of real rclpy (ROS 2 Jazzy) shared by the nodes and the CLI tools.
 
-Backends
---------
-- ``rclpy``: chosen when ``import rclpy`` works (a ROS 2 Jazzy install). ``Node``, ``spin``,
-  QoS, parameters, clock and message classes are rclpy's own objects.
-- ``dds``: otherwise. Nodes run directly on Cyclone DDS (PyPI ``cyclonedds``) with the wire
-  conventions of rmw_cyclonedds_cpp (``rt/<topic>``, ``pkg::msg::dds_::Type_``, XCDR1), so
-  they talk to real ROS 2 nodes on the same domain. Message classes are generated at runtime
-  from the ROS 2 Jazzy definitions in rosbags' typestore.
+Nodes are plain ``rclpy.node.Node`` subclasses; this module only adds what rclpy spells
+differently or leaves out:
 
-``DBCSLAM_RUNTIME=rclpy|dds`` forces a backend (``rclpy`` forced but missing is an error).
+- message classes by type name (:func:`message_class`, :func:`type_name_of`);
+- named QoS profiles (:func:`qos_profile`, see :mod:`dbcslam_ros.runtime.qos`) and a neutral,
+  plain-data view of rclpy QoS (:func:`neutral_qos`) for bag metadata;
+- exact CDR (:func:`encode`): ``rclpy.serialization.serialize_message`` returns a buffer of the
+  *estimated* size whose padding is uninitialised; :func:`encode` and :func:`canonical_cdr`
+  re-serialise through the rosbags typestore, so bytes are what rosbags / rosbag2 write
+  (zeroed padding, exact length) and bags are reproducible;
+- raw (CDR bytes) endpoints by type name and graph queries for ``record / play / topic``;
+- :func:`spin_until` for tools that spin until a condition holds.
 
-Network (``dds`` backend): loopback only by default (interface ``lo``, no multicast, peer
-127.0.0.1, domain ``ROS_DOMAIN_ID``). To leave loopback set ``DBCSLAM_DDS_INTERFACE=<iface>``
-(multicast discovery on that interface, optional ``DBCSLAM_DDS_PEERS=a,b``) or
-``DBCSLAM_DDS_RESPECT_URI=1`` to use your own ``CYCLONEDDS_URI``. See
-:mod:`dbcslam_ros.runtime.dds_config`.
-
-Typical node::
-
-    from dbcslam_ros import runtime as rt
-
-    def main(args=None):
-        rt.init(args)
-        node = rt.Node("talker")
-        String = rt.message_class("std_msgs/msg/String")
-        pub = node.create_publisher(String, "/chatter", rt.qos_profile("default"))
-        node.create_timer(0.1, lambda: pub.publish(String(data="hi")))
-        try:
-            rt.spin(node)
-        except (KeyboardInterrupt, rt.ExternalShutdownException):
-            pass
-        finally:
-            node.destroy_node()
-            rt.try_shutdown()
-
-Raw access (bag recorder/player): :func:`create_raw_subscription` delivers CDR bytes
-(4-byte encapsulation header + payload, as ``typestore.serialize_cdr`` produces), and
-:func:`create_raw_publisher` returns a publisher whose ``publish`` takes such bytes. Graph:
-:func:`get_topic_names_and_types`, :func:`get_publishers_info` (offered QoS as
-:class:`QoSProfile`). Codec: :func:`encode`, :func:`decode`, :func:`to_rosbags`,
-:func:`from_rosbags`.
+Start ROS with :func:`init` (= :func:`dbcslam_ros.ros_context.init_ros`, network defaults).
 """
 
 from __future__ import annotations
 
 import importlib
-import os
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import Any
 
-from dbcslam_ros.errors import RuntimeBackendError
+import rclpy
+import rclpy.logging
+import rclpy.utilities
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+from rclpy.qos import QoSProfile as RclpyQoSProfile
+from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.time import Time
+from rclpy.utilities import remove_ros_args
+
+from dbcslam_ros.errors import MessageTypeError
+from dbcslam_ros.ros_context import init_ros, spin_node
 from dbcslam_ros.runtime.qos import PROFILES, QoSProfile, named_profile
-from dbcslam_ros.runtime.ros_args import remove_ros_args
 from dbcslam_ros.runtime.typestore import get_typestore, normalize_type_name, register_msgdefs
 
 __all__ = [
-    "BACKEND",
     "PROFILES",
     "Duration",
     "EndpointInfo",
@@ -68,6 +54,7 @@ __all__ = [
     "QoSProfile",
     "Time",
     "adapted_subscription_qos",
+    "canonical_cdr",
     "create_raw_publisher",
     "create_raw_subscription",
     "decode",
@@ -79,15 +66,16 @@ __all__ = [
     "init",
     "make_qos",
     "message_class",
+    "native_qos",
     "neutral_qos",
     "normalize_type_name",
     "ok",
     "qos_profile",
     "register_msgdefs",
     "remove_ros_args",
-    "select_backend",
     "shutdown",
     "spin",
+    "spin_node",
     "spin_once",
     "spin_until",
     "to_rosbags",
@@ -95,96 +83,41 @@ __all__ = [
     "type_name_of",
 ]
 
-
-def select_backend() -> str:
-    """Backend name from ``DBCSLAM_RUNTIME`` or, when unset, ``rclpy`` if importable else
-    ``dds``.
-
-    Raises:
-        RuntimeBackendError: unknown value, or ``rclpy`` forced but not importable.
-    """
-    choice = os.environ.get("DBCSLAM_RUNTIME", "").strip().lower()
-    if choice not in ("", "rclpy", "dds"):
-        msg = f"bad DBCSLAM_RUNTIME={choice!r}: expected 'rclpy' or 'dds' (or unset for auto)"
-        raise RuntimeBackendError(msg)
-    if choice == "dds":
-        return "dds"
-    try:
-        importlib.import_module("rclpy")
-    except ImportError as err:
-        if choice == "rclpy":
-            msg = (
-                "DBCSLAM_RUNTIME=rclpy but rclpy cannot be imported "
-                f"({err}); source a ROS 2 Jazzy setup or use DBCSLAM_RUNTIME=dds"
-            )
-            raise RuntimeBackendError(msg) from err
-        return "dds"
-    return "rclpy"
+init = init_ros
+ok = rclpy.utilities.ok
+shutdown = rclpy.shutdown
+try_shutdown = rclpy.utilities.try_shutdown
+spin = rclpy.spin
+spin_once = rclpy.spin_once
+get_logger = rclpy.logging.get_logger
 
 
-BACKEND: str = select_backend()
+@dataclass
+class EndpointInfo:
+    """Plain view of a discovered endpoint (QoS as the neutral :class:`QoSProfile`)."""
 
-if TYPE_CHECKING:
-    from dbcslam_ros.runtime.dds_backend import (
-        Duration,
-        EndpointInfo,
-        ExternalShutdownException,
-        Node,
-        Parameter,
-        ParameterDescriptor,
-        Time,
-        get_logger,
-        init,
-        ok,
-        shutdown,
-        spin,
-        spin_once,
-        try_shutdown,
-    )
-else:
-    _b = importlib.import_module(
-        "dbcslam_ros.runtime.dds_backend"
-        if BACKEND == "dds"
-        else "dbcslam_ros.runtime.rclpy_backend"
-    )
-    Duration = _b.Duration
-    EndpointInfo = _b.EndpointInfo
-    ExternalShutdownException = _b.ExternalShutdownException
-    Node = _b.Node
-    Parameter = _b.Parameter
-    ParameterDescriptor = _b.ParameterDescriptor
-    Time = _b.Time
-    get_logger = _b.get_logger
-    init = _b.init
-    ok = _b.ok
-    shutdown = _b.shutdown
-    spin = _b.spin
-    spin_once = _b.spin_once
-    try_shutdown = _b.try_shutdown
-
-
-def _backend_module() -> Any:
-    if BACKEND == "dds":
-        from dbcslam_ros.runtime import dds_messages
-
-        return dds_messages
-    from dbcslam_ros.runtime import rclpy_backend
-
-    return rclpy_backend
+    node_name: str
+    node_namespace: str
+    topic_type: str
+    endpoint_type: str
+    qos_profile: QoSProfile
+    endpoint_gid: bytes = b""
+    topic_name: str = ""
+    user_data: dict[str, str] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------- QoS
 
 
-def qos_profile(name: str, depth: int | None = None) -> Any:
-    """Backend QoS object of a named profile: ``sensor_data`` (best effort, keep last 5),
-    ``default`` (reliable, keep last 10), ``latched`` (reliable, transient local, depth 1),
-    ``clock``; ``depth`` overrides the history depth.
+def qos_profile(name: str, depth: int | None = None) -> RclpyQoSProfile:
+    """rclpy QoS of a named profile: ``sensor_data`` (best effort, keep last 5), ``default``
+    (reliable, keep last 10), ``latched`` (reliable, transient local, depth 1), ``clock``;
+    ``depth`` overrides the history depth.
 
     Raises:
         UsageError: unknown name.
     """
-    return _native(named_profile(name, depth))
+    return native_qos(named_profile(name, depth))
 
 
 def make_qos(
@@ -192,98 +125,133 @@ def make_qos(
     durability: str = "volatile",
     history: str = "keep_last",
     depth: int = 10,
-) -> Any:
-    """Backend QoS object from explicit policies (see :class:`QoSProfile`)."""
-    return _native(QoSProfile(reliability, durability, history, depth))
+) -> RclpyQoSProfile:
+    """rclpy QoS from explicit policies (see :class:`QoSProfile`)."""
+    return native_qos(QoSProfile(reliability, durability, history, depth))
 
 
-def _native(qos: QoSProfile) -> Any:
-    if BACKEND == "dds":
-        return qos
-    from dbcslam_ros.runtime import rclpy_backend
-
-    return rclpy_backend.native_qos(qos)
+def native_qos(qos: QoSProfile) -> RclpyQoSProfile:
+    """rclpy ``QoSProfile`` of a neutral profile."""
+    return RclpyQoSProfile(
+        reliability=ReliabilityPolicy.RELIABLE
+        if qos.reliability == "reliable"
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if qos.durability == "transient_local"
+        else DurabilityPolicy.VOLATILE,
+        history=HistoryPolicy.KEEP_ALL if qos.history == "keep_all" else HistoryPolicy.KEEP_LAST,
+        depth=max(int(qos.depth), 1),
+    )
 
 
 def neutral_qos(qos: Any) -> QoSProfile:
-    """:class:`QoSProfile` of a backend QoS object (identity on the ``dds`` backend)."""
+    """Neutral profile of an rclpy ``QoSProfile`` (identity on a :class:`QoSProfile`)."""
     if isinstance(qos, QoSProfile):
         return qos
-    from dbcslam_ros.runtime import rclpy_backend
-
-    return rclpy_backend.neutral_qos(qos)
+    keep_all = qos.history == HistoryPolicy.KEEP_ALL
+    return QoSProfile(
+        "best_effort" if qos.reliability == ReliabilityPolicy.BEST_EFFORT else "reliable",
+        "transient_local" if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else "volatile",
+        "keep_all" if keep_all else "keep_last",
+        0 if keep_all else max(int(qos.depth), 1),
+    )
 
 
 # ---------------------------------------------------------------------------------- messages
 
 
 def message_class(type_name: str) -> Any:
-    """Message class of ``pkg/msg/Type`` (generated on ``dds``, imported on ``rclpy``).
+    """The rclpy message class of ``pkg/msg/Type`` (imported from ``pkg.msg``).
 
     Raises:
-        MessageTypeError: unknown type.
+        MessageTypeError: bad name or type not installed.
     """
-    return _backend_module().message_class(type_name)
+    pkg, _, typ = normalize_type_name(type_name).split("/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), typ)
+    except (ImportError, AttributeError) as err:
+        msg = f"ROS message type {type_name!r} is not installed (import {pkg}.msg.{typ} failed)"
+        raise MessageTypeError(msg) from err
 
 
 def type_name_of(msg_or_cls: Any) -> str:
-    """``pkg/msg/Type`` of a message object or class."""
-    return str(_backend_module().type_name_of(msg_or_cls))
+    """``pkg/msg/Type`` of an rclpy message object or class."""
+    cls = msg_or_cls if isinstance(msg_or_cls, type) else type(msg_or_cls)
+    pkg = cls.__module__.split(".")[0]
+    return f"{pkg}/msg/{cls.__name__}"
+
+
+def canonical_cdr(data: bytes | bytearray | memoryview, type_name: str) -> bytes:
+    """The exact CDR bytes of a serialized message: parsed and re-serialised by the rosbags
+    typestore (exact length, zeroed padding, little endian), whatever trailing bytes or
+    padding garbage ``data`` carries.
+
+    Raises:
+        MessageTypeError: the bytes do not parse as ``type_name``.
+    """
+    import struct
+
+    name = normalize_type_name(type_name)
+    store = get_typestore()
+    raw = memoryview(bytes(data))
+    try:
+        if len(raw) < 4 or bytes(raw[:2]) not in (b"\x00\x00", b"\x00\x01"):
+            msg = f"not a CDR buffer (header {bytes(raw[:4])!r})"
+            raise ValueError(msg)
+        msgdef = store.get_msgdef(name)
+        func = msgdef.deserialize_cdr_le if raw[1] else msgdef.deserialize_cdr_be
+        obj, _pos = func(raw[4:], 0, msgdef.cls, store)
+        return bytes(store.serialize_cdr(obj, name))
+    except (KeyError, ValueError, struct.error, UnicodeDecodeError, IndexError) as err:
+        msg = f"cannot read {len(raw)} CDR bytes as {name}: {err}"
+        raise MessageTypeError(msg) from err
 
 
 def encode(msg: Any) -> bytes:
-    """CDR bytes (4-byte header + payload, little endian) of a message object."""
-    return bytes(_backend_module().encode(msg))
+    """Exact CDR bytes (4-byte header + payload, little endian) of an rclpy message."""
+    return canonical_cdr(serialize_message(msg), type_name_of(msg))
 
 
 def decode(data: bytes | bytearray | memoryview, cls_or_name: Any) -> Any:
-    """Message object from CDR bytes; ``cls_or_name`` is a class or ``pkg/msg/Type``."""
-    return _backend_module().decode(bytes(data), cls_or_name)
+    """rclpy message from CDR bytes; ``cls_or_name`` is a class or ``pkg/msg/Type``."""
+    cls = message_class(cls_or_name) if isinstance(cls_or_name, str) else cls_or_name
+    return deserialize_message(bytes(data), cls)
 
 
 def to_rosbags(msg: Any) -> Any:
     """The rosbags (typestore) message object equal to ``msg``."""
-    name = type_name_of(msg)
-    return get_typestore().deserialize_cdr(encode(msg), name)
+    return get_typestore().deserialize_cdr(encode(msg), type_name_of(msg))
 
 
 def from_rosbags(obj: Any, type_name: str | None = None) -> Any:
-    """Runtime message object equal to a rosbags message object (type from ``__msgtype__``)."""
+    """rclpy message object equal to a rosbags message object (type from ``__msgtype__``)."""
     name = normalize_type_name(type_name or obj.__msgtype__)
-    return decode(get_typestore().serialize_cdr(obj, name), name)
+    return decode(bytes(get_typestore().serialize_cdr(obj, name)), name)
 
 
 # --------------------------------------------------------------------------- raw and graph
 
 
 def create_raw_subscription(
-    node: Any, type_name: str, topic: str, callback: Callable[[bytes], None], qos: Any
+    node: Node, type_name: str, topic: str, callback: Callable[[bytes], None], qos: Any
 ) -> Any:
-    """Subscribe to ``topic`` of type ``pkg/msg/Type``; ``callback`` gets CDR bytes."""
-    if BACKEND == "dds":
-        return node.create_subscription(
-            type_name, topic, callback, _native(neutral_qos(qos)), raw=True
-        )
+    """Subscribe to ``topic`` of type ``pkg/msg/Type``; ``callback`` gets the CDR bytes as
+    received (use :func:`canonical_cdr` for bag-exact bytes)."""
     return node.create_subscription(message_class(type_name), topic, callback, qos, raw=True)
 
 
-def create_raw_publisher(node: Any, type_name: str, topic: str, qos: Any) -> Any:
+def create_raw_publisher(node: Node, type_name: str, topic: str, qos: Any) -> Any:
     """Publisher of ``topic`` (type ``pkg/msg/Type``) whose ``publish`` accepts CDR bytes."""
-    if BACKEND == "dds":
-        return node.create_publisher(type_name, topic, _native(neutral_qos(qos)))
     return node.create_publisher(message_class(type_name), topic, qos)
 
 
-def get_topic_names_and_types(node: Any) -> list[tuple[str, list[str]]]:
+def get_topic_names_and_types(node: Node) -> list[tuple[str, list[str]]]:
     """``[(topic, [pkg/msg/Type, ...]), ...]`` of all topics seen on the domain."""
     return [(str(n), list(t)) for n, t in node.get_topic_names_and_types()]
 
 
-def get_publishers_info(node: Any, topic: str) -> list[Any]:
-    """Discovered publishers of ``topic`` as :class:`EndpointInfo` with neutral QoS."""
-    infos = node.get_publishers_info_by_topic(topic)
-    if BACKEND == "dds":
-        return list(infos)
+def get_publishers_info(node: Node, topic: str) -> list[EndpointInfo]:
+    """Discovered publishers of ``topic`` with neutral QoS."""
     return [
         EndpointInfo(
             node_name=i.node_name,
@@ -294,11 +262,11 @@ def get_publishers_info(node: Any, topic: str) -> list[Any]:
             endpoint_gid=bytes(i.endpoint_gid),
             topic_name=topic,
         )
-        for i in infos
+        for i in node.get_publishers_info_by_topic(topic)
     ]
 
 
-def adapted_subscription_qos(infos: list[Any], depth: int = 100) -> Any:
+def adapted_subscription_qos(infos: list[Any], depth: int = 100) -> RclpyQoSProfile:
     """Subscription QoS that matches every given publisher and keeps what they offer (the
     rosbag2 recorder rule): reliable only if all offer reliable, transient local only if all
     offer transient local; keep last ``depth``. ``infos`` as from :func:`get_publishers_info`;
@@ -315,7 +283,7 @@ def adapted_subscription_qos(infos: list[Any], depth: int = 100) -> Any:
 
 
 def spin_until(
-    node: Any, predicate: Callable[[], bool], timeout_sec: float, step_sec: float = 0.05
+    node: Node, predicate: Callable[[], bool], timeout_sec: float, step_sec: float = 0.05
 ) -> bool:
     """Spin ``node`` until ``predicate()`` is true or ``timeout_sec`` passed; returns the
     predicate's last value."""

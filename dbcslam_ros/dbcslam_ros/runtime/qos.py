@@ -1,7 +1,7 @@
-"""Backend-neutral QoS description, named profiles and the plain-dict form used in bags.
+"""Plain-data QoS description, named profiles and the plain-dict form used in bags.
 
-The ``dds`` backend uses :class:`QoSProfile` directly; the ``rclpy`` backend converts it to a
-real ``rclpy.qos.QoSProfile`` (see :func:`dbcslam_ros.runtime.qos_profile`).
+:func:`dbcslam_ros.runtime.qos_profile` turns a named profile into a real
+``rclpy.qos.QoSProfile``; :func:`dbcslam_ros.runtime.neutral_qos` goes the other way.
 
 Named profiles (ROS 2 conventions):
 

@@ -28,7 +28,7 @@ def _forward(pub: Any) -> Callable[[bytes], None]:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the relay until SIGINT/SIGTERM; returns the exit code."""
-    rt.init(args)
+    rt.init(list(args) if args is not None else sys.argv)
     node = rt.Node("relay")
     try:
         routes = list(node.declare_parameter("routes", [""]).value)
@@ -42,9 +42,7 @@ def main(args: Sequence[str] | None = None) -> int:
             pub = rt.create_raw_publisher(node, typ, dst, qos)
             rt.create_raw_subscription(node, typ, src, _forward(pub), qos)
         node.get_logger().info(f"relaying {len(routes)} route(s)")
-        rt.spin(node)
-    except (KeyboardInterrupt, rt.ExternalShutdownException):
-        pass
+        rt.spin_node(node)
     finally:
         node.destroy_node()
         rt.try_shutdown()

@@ -1,8 +1,8 @@
 """Shared ROS 2 Jazzy type store (rosbags) and ROS type-name helpers.
 
-Both backends name message types the ROS 2 way, ``pkg/msg/Type``; this module normalises the
-spellings users write (``pkg/Type``, ``pkg.msg.Type``) and holds the one rosbags typestore the
-runtime generates its message classes from and converts to/from.
+Message types are named the ROS 2 way, ``pkg/msg/Type``; this module normalises the spellings
+users write (``pkg/Type``, ``pkg.msg.Type``) and holds the one rosbags typestore that bag files
+are read and written with (and that :func:`dbcslam_ros.runtime.encode` canonicalises CDR with).
 """
 
 from __future__ import annotations
@@ -13,11 +13,9 @@ from typing import Any
 from dbcslam_ros.errors import MessageTypeError
 
 __all__ = [
-    "dds_type_name",
     "get_typestore",
     "normalize_type_name",
     "register_msgdefs",
-    "ros_type_from_dds",
 ]
 
 _LOCK = threading.RLock()
@@ -52,20 +50,6 @@ def normalize_type_name(name: str) -> str:
         )
         raise MessageTypeError(msg)
     return "/".join(parts)
-
-
-def dds_type_name(name: str) -> str:
-    """DDS type name used by rmw_cyclonedds_cpp: ``pkg::msg::dds_::Type_``."""
-    pkg, sub, typ = normalize_type_name(name).split("/")
-    return f"{pkg}::{sub}::dds_::{typ}_"
-
-
-def ros_type_from_dds(dds_name: str) -> str | None:
-    """Inverse of :func:`dds_type_name`; ``None`` for a DDS type that is not a ROS message."""
-    parts = dds_name.split("::")
-    if len(parts) == 4 and parts[2] == "dds_" and parts[3].endswith("_"):
-        return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
-    return None
 
 
 def register_msgdefs(msgdefs: dict[str, str]) -> None:

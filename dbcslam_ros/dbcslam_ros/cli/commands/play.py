@@ -57,11 +57,8 @@ def _publish_clock(pub: Any, bag_time_ns: int) -> None:
 
 
 def _wait_for_acks(rt: Any, pub: Any, timeout_s: float) -> None:
-    """Block until reliable readers acknowledged everything (bounded; both backends)."""
-    if hasattr(pub, "wait_for_acks"):  # dds backend
-        pub.wait_for_acks(timeout_s)
-    elif hasattr(pub, "wait_for_all_acked"):  # rclpy
-        pub.wait_for_all_acked(rt.Duration(seconds=timeout_s))
+    """Block until reliable readers acknowledged everything (bounded)."""
+    pub.wait_for_all_acked(rt.Duration(seconds=timeout_s))
 
 
 def _open_bags(args: argparse.Namespace) -> list[Any]:

@@ -39,6 +39,9 @@ CONTRACT_TOPICS: dict[str, str] = {
     "/dbcslam/markers": "visualization_msgs/msg/MarkerArray",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
+#: Topics every rclpy node publishes; left out of "record everything" unless asked
+#: (``--include-ros-topics``) or named, as ``ros2 bag record`` does.
+ROS_INTERNAL_TOPICS = frozenset({"/rosout", "/parameter_events"})
 #: Subscription history depth: generous so bursts are not dropped before they are taken.
 _DEPTH = 1000
 _DISCOVERY_PERIOD_S = 0.2
@@ -49,10 +52,13 @@ Record live topics into a rosbag2 bag: directory DIR with metadata.yaml (version
 MCAP file (ros2 profile, CDR messages, the offered QoS of each topic), readable by
 'ros2 bag play', rosbags and the mcap tools.
 
-Without TOPIC arguments every topic is recorded; topics that appear later are picked up
-(the graph is polled every 0.2 s). Each topic is subscribed with a QoS compatible with
-what its publishers offer (reliable if all are, transient local if all are, so latched
-topics such as /scenario are recorded even when published before the recorder started).
+Without TOPIC arguments every topic is recorded (except /rosout and /parameter_events,
+unless --include-ros-topics); topics that appear later are picked up (the graph is polled
+every 0.2 s). Messages are stored as exact CDR (re-serialised through the rosbags
+typestore: exact length, zeroed padding), so a recording is reproducible byte for byte.
+Each topic is subscribed with a QoS compatible with what its publishers offer (reliable if
+all are, transient local if all are, so latched topics
+such as /scenario are recorded even when published before the recorder started).
 Log time = receive time (ns since the epoch). --contract subscribes to the topics of the
 interface contract at once, with their contract types and QoS, so nothing a node started
 afterwards publishes is missed (`dbcslam demo` uses it); other topics are still discovered.
@@ -71,8 +77,12 @@ _EXAMPLES = """\
 class _Recorder:
     """Subscribes to discovered topics and writes what arrives into the bag."""
 
-    def __init__(self, rt: Any, node: Any, writer: Any, topics: list[str]) -> None:
+    def __init__(
+        self, rt: Any, node: Any, writer: Any, topics: list[str], *, internal: bool = False
+    ) -> None:
         self.rt = rt
+        self.internal = internal
+        self.bad: dict[str, int] = {}
         self.node = node
         self.writer = writer
         self.wanted = set(topics)
@@ -88,6 +98,8 @@ class _Recorder:
             if topic in self.subscribed or topic in self.skipped:
                 continue
             if not self.all_topics and topic not in self.wanted:
+                continue
+            if self.all_topics and not self.internal and topic in ROS_INTERNAL_TOPICS:
                 continue
             infos = self.rt.get_publishers_info(self.node, topic)
             if not infos:
@@ -107,13 +119,27 @@ class _Recorder:
             self.writer.add_topic(topic, type_name, [runtime_qos_to_bag(q) for q in offered])
             qos = subscription_qos_for(offered, depth=_DEPTH)
 
-            def on_message(data: bytes, topic: str = topic) -> None:
-                self.writer.write(topic, data, time.time_ns())
+            def on_message(data: bytes, topic: str = topic, type_name: str = type_name) -> None:
+                self.write(topic, type_name, data)
 
             self.subscribed[topic] = self.rt.create_raw_subscription(
                 self.node, type_name, topic, on_message, native_qos(self.rt, qos)
             )
             print(f"recording {topic} [{type_name}]", file=sys.stderr, flush=True)
+
+    def write(self, topic: str, type_name: str, data: bytes) -> None:
+        """Write one received message as exact CDR (the middleware may hand over trailing
+        alignment bytes); a message that does not parse is counted and left out."""
+        from dbcslam_ros.errors import MessageTypeError
+
+        try:
+            cdr = self.rt.canonical_cdr(data, type_name)
+        except MessageTypeError as err:
+            self.bad[topic] = self.bad.get(topic, 0) + 1
+            if self.bad[topic] == 1:
+                print(f"warning: dropping unreadable message on {topic}: {err}", file=sys.stderr)
+            return
+        self.writer.write(topic, cdr, time.time_ns())
 
     def subscribe_contract(self) -> None:
         """Subscribe now to every contract topic with its contract type and QoS (before any
@@ -133,7 +159,7 @@ class _Recorder:
                 if topic not in self.added:
                     self.writer.add_topic(topic, type_name, [bag_qos])
                     self.added.add(topic)
-                self.writer.write(topic, data, time.time_ns())
+                self.write(topic, type_name, data)
 
             self.subscribed[topic] = self.rt.create_raw_subscription(
                 self.node, type_name, topic, on_message, native_qos(self.rt, qos)
@@ -164,7 +190,7 @@ def _run(args: argparse.Namespace) -> int:
     writer.open()  # fails before any DDS work if the bag exists
     try:
         with node_session(RECORDER_NODE) as (rt, node, stop):
-            rec = _Recorder(rt, node, writer, list(args.topics))
+            rec = _Recorder(rt, node, writer, list(args.topics), internal=args.include_ros_topics)
             if args.contract:
                 rec.subscribe_contract()
             start = time.monotonic()
@@ -211,6 +237,12 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "--duration", type=positive_float, metavar="S", help="stop after S seconds"
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress counts")
+    parser.add_argument(
+        "--include-ros-topics",
+        action="store_true",
+        help="when recording everything, also record /rosout and /parameter_events "
+        "(left out by default, like 'ros2 bag record'; a topic named as TOPIC is recorded)",
+    )
     parser.add_argument(
         "--contract",
         action="store_true",

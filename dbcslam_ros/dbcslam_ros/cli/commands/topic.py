@@ -44,11 +44,28 @@ examples:
 """
 
 
+SETTLE_S = 0.5
+"""Discovery has settled when the topic set did not change for this long (s)."""
+
+
 def _discover(rt: Any, node: Any, stop: Any, spin_time: float) -> list[tuple[str, list[str]]]:
-    deadline = time.monotonic() + spin_time
-    while time.monotonic() < deadline and not stop.stopped:
-        rt.spin_once(node, timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
-    return [(n, t) for n, t in rt.get_topic_names_and_types(node)]
+    """Topics after at least ``spin_time`` s of discovery and until the set has been stable
+    for :data:`SETTLE_S` (at most ``spin_time + 2`` s): Fast DDS discovery of a peer can take
+    about a second, and topics trickle in one endpoint at a time."""
+    start = time.monotonic()
+    last: list[tuple[str, list[str]]] = []
+    changed = start
+    while not stop.stopped:
+        now = time.monotonic()
+        current = sorted(rt.get_topic_names_and_types(node))
+        if current != last:
+            last, changed = current, now
+        if now - start >= spin_time and now - changed >= SETTLE_S:
+            break
+        if now - start >= spin_time + 2.0:
+            break
+        rt.spin_once(node, timeout_sec=0.05)
+    return last
 
 
 def _run_list(args: argparse.Namespace) -> int:
@@ -64,6 +81,7 @@ def _wait_for_topic(
 ) -> tuple[str, list[Any]] | None:
     """Type of ``topic`` and its publishers' offered QoS, once a publisher is seen."""
     deadline = None if timeout is None else time.monotonic() + timeout
+    print(f"waiting for a publisher of {topic} ...", file=sys.stderr, flush=True)
     while not stop.stopped:
         infos = rt.get_publishers_info(node, topic)
         types = sorted({i.topic_type for i in infos})
@@ -102,9 +120,11 @@ def _run_echo(args: argparse.Namespace) -> int:
         type_name, offered = found
         qos = qos_from_arguments(args, offered)
         pending: deque[bytes] = deque()
-        rt.create_raw_subscription(
-            node, type_name, args.topic, pending.append, native_qos(rt, qos)
-        )
+
+        def on_message(data: bytes) -> None:  # a real function: rclpy inspects its signature
+            pending.append(data)
+
+        rt.create_raw_subscription(node, type_name, args.topic, on_message, native_qos(rt, qos))
         deadline = None if args.timeout is None else time.monotonic() + args.timeout
         while not stop.stopped:
             rt.spin_once(node, timeout_sec=0.05)
@@ -171,7 +191,8 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         help="print the topics seen on the domain",
         description=textwrap.fill(
             "Print the topics seen on the DDS domain (ROS_DOMAIN_ID), one per line, after "
-            "waiting --spin-time seconds for discovery."
+            "waiting at least --spin-time seconds for discovery and until the list has not "
+            "changed for 0.5 s (at most --spin-time + 2 s)."
         ),
         epilog=_LIST_EXAMPLES,
         formatter_class=fmt,
@@ -180,9 +201,9 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     p_list.add_argument(
         "--spin-time",
         type=positive_float,
-        default=1.0,
+        default=2.0,
         metavar="S",
-        help="seconds to wait for discovery (default 1.0)",
+        help="minimum seconds to wait for discovery (default 2.0)",
     )
     p_list.set_defaults(_topic_run=_run_list)
 
