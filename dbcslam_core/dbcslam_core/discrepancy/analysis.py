@@ -1,0 +1,323 @@
+"""`analyse`: prepare -> fit -> compare -> verdict, on the filter's own evidence.
+
+1. prepare: split the runs (`runs.split_runs`), score the nominal model on the training
+   runs (`scoring.Scorer`: the filter's summed log predictive likelihood, fixed seed:
+   common random numbers across all candidates and parameters) and on the held-out runs
+   with the seed and `noise_seeds` (mean and Monte-Carlo std of the held-out score).
+2. fit: every candidate effect on the training runs (`fitting.fit_effect`); an effect whose
+   coarse grid does not beat the nominal training score by `screen` nats is not refined and
+   cannot be named (saves filter runs; the held-out test below decides).
+3. compare: each refined fit is scored on the held-out runs with the same seeds;
+   delta_loglik = mean held-out evidence over the nominal model's, with standard error
+   se = sqrt(std_ext^2 / n + std_nom^2 / n) from the seed-to-seed spread (a mis-specified
+   model's filter loses track at times, so its score is much noisier than a well-specified
+   one's). It beats the nominal model clearly when delta_loglik > k/2 ln(N_heldout) +
+   z se (a BIC-like parameter penalty plus the measured Monte-Carlo margin), the effect is
+   large enough to matter (`effects.effect_size` >= 1) and its estimate is not at a bound
+   of its search range.
+4. verdict: the clear candidate with the largest delta_loglik - penalty, or `none`; when
+   the second clear candidate's held-out evidence is within z standard errors of the
+   winner's (their own seed-to-seed spreads; at least `min_margin`), both are named (the
+   data cannot tell them apart: mass_scale k and input_gain 1/k predict the same motion).
+
+The open-loop rollouts (`rollouts`) from the filter's posterior means are pictures for the
+report only.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import ModelError
+from ..extensions import EFFECTS
+from .effects import FILTER_EFFECTS, Hypothesis, effect_size, n_free_params
+from .fitting import FitResult, fit_effect
+from .report import Analysis, CandidateFit
+from .rollouts import Prediction, Predictor, RolloutConfig, characterise, mods_of
+from .runs import Run, default_effects, split_runs
+from .scoring import ModelScore, ScoreConfig, Scorer
+
+__all__ = ["DiscrepancyConfig", "analyse"]
+
+NOMINAL = Hypothesis()
+
+
+@dataclass(frozen=True)
+class DiscrepancyConfig:
+    """Analysis settings.
+
+    particles / seed: the scoring filter (fixed seed = common random numbers);
+    noise_seeds: further seeds of the held-out scores (Monte-Carlo mean and noise); z:
+    margins in standard errors (module docstring); min_margin (nats): floor of the margins;
+    screen (nats): training gain needed to refine an effect; effects: candidate names
+    (None: `runs.default_effects` that the filter can score); holdout_fraction: held-out
+    tail of a single run without held-out runs;
+    horizon, stride, max_starts: the rollout pictures (`rollouts.RolloutConfig`);
+    pictures: compute them.
+    """
+
+    particles: int = 300
+    seed: int = 0
+    noise_seeds: tuple[int, ...] = (1, 2)
+    z: float = 3.0
+    min_margin: float = 10.0
+    screen: float = 30.0
+    effects: tuple[str, ...] | None = None
+    holdout_fraction: float = 0.4
+    horizon: int = 20
+    stride: int = 2
+    max_starts: int = 150
+    pictures: bool = True
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    train: list[Run]
+    held: list[Run]
+    description: str
+    effects: tuple[str, ...]
+    nominal_train: ModelScore
+    nominal_held: ModelScore
+    held_mean: float
+    sigma: float
+    screen: float
+    seeds: tuple[int, ...]
+
+
+def _effects(cfg: DiscrepancyConfig, run: Run) -> tuple[str, ...]:
+    if cfg.effects is None:
+        return tuple(e for e in default_effects(run.scenario) if e in FILTER_EFFECTS)
+    for e in cfg.effects:
+        if e not in FILTER_EFFECTS:
+            known = "unknown effect" if e not in EFFECTS else "not scorable by the filter"
+            msg = f"candidate effect {e!r}: {known}; valid: {sorted(FILTER_EFFECTS)}"
+            raise ModelError(msg)
+    return tuple(cfg.effects)
+
+
+def prepare(
+    runs: Sequence[Run],
+    heldout_runs: Sequence[Run],
+    cfg: DiscrepancyConfig,
+    scorer: Scorer,
+    say: Callable[[str], None],
+) -> _Prepared:
+    """Split, nominal scores and the measured Monte-Carlo noise (module docstring, 1)."""
+    train, held, desc = split_runs(runs, heldout_runs, cfg.holdout_fraction)
+    effects = _effects(cfg, train[0])
+    say(f"nominal model on {len(train)} training / {len(held)} held-out run(s)")
+    nom_t = scorer.score(NOMINAL, train)
+    nom_h = scorer.score(NOMINAL, held)
+    if not (math.isfinite(nom_t.loglik) and math.isfinite(nom_h.loglik)):
+        msg = "the filter loses track of the data under the nominal model (no finite score)"
+        raise ModelError(msg)
+    seeds = (cfg.seed, *cfg.noise_seeds)
+    mean, sigma = held_scores(NOMINAL, held, scorer, seeds)
+    say(
+        f"nominal evidence: training {nom_t.loglik:.1f}, held out {mean:.1f} +- {sigma:.1f} "
+        f"nats (mean, std over {len(seeds)} filter seeds, {cfg.particles} particles)"
+    )
+    return _Prepared(train, held, desc, effects, nom_t, nom_h, mean, sigma, cfg.screen, seeds)
+
+
+def held_scores(
+    hyp: Hypothesis, runs: Sequence[Run], scorer: Scorer, seeds: Sequence[int]
+) -> tuple[float, float]:
+    """Mean and std (nats) of the held-out score over filter seeds (-inf when the filter
+    loses all particles under any seed; std 0 with one seed)."""
+    vals = [scorer.score(hyp, runs, s).loglik for s in seeds]
+    if not all(math.isfinite(v) for v in vals):
+        return -math.inf, math.inf
+    return float(sum(vals) / len(vals)), float(statistics.stdev(vals)) if len(vals) > 1 else 0.0
+
+
+def fit_all(
+    prep: _Prepared, scorer: Scorer, say: Callable[[str], None], started: float
+) -> list[FitResult]:
+    """Fit every candidate effect on the training runs (module docstring, 2)."""
+    fits = []
+    for i, eff in enumerate(prep.effects):
+        f = fit_effect(eff, prep.train, scorer, prep.nominal_train.loglik, prep.screen)
+        fits.append(f)
+        ps = ", ".join(f"{k}={v:.4g}" for k, v in f.params.items())
+        say(
+            f"  [{i + 1}/{len(prep.effects)}, {time.monotonic() - started:.0f} s] {eff}: "
+            f"{ps}, training gain {f.train_delta:+.1f} nats"
+            f"{'' if f.refined else ' (below the screen: not refined)'}"
+        )
+    return fits
+
+
+def compare(
+    prep: _Prepared, fits: Sequence[FitResult], scorer: Scorer, cfg: DiscrepancyConfig
+) -> list[CandidateFit]:
+    """Held-out scores and the clear criteria (module docstring, 3)."""
+    sc = prep.train[0].scenario
+    n_h = max(prep.nominal_held.n_obs, 2)
+    n_s = len(prep.seeds)
+    out = []
+    for f in fits:
+        k = n_free_params(f.effect, sc)
+        size = effect_size(f.effect, f.params, sc)
+        note = ""
+        if not f.refined:
+            note = "no training gain above the screen"
+        elif f.at_bound:
+            note = "estimate at a bound of the search range (not a plausible fit)"
+        elif size < 1.0:
+            note = f"effect too small to matter (size {size:.2f} < 1)"
+        delta, se, std, rmse, nll, trk = (math.nan,) * 6
+        if f.refined:
+            mean, std = held_scores(f.hypothesis, prep.held, scorer, prep.seeds)
+            s = scorer.score(f.hypothesis, prep.held)
+            delta = mean - prep.held_mean
+            se = math.sqrt((std**2 + prep.sigma**2) / n_s)
+            rmse, nll, trk = s.pred_rmse, -mean / max(s.n_obs, 1), s.track_rmse
+        penalty = 0.5 * k * math.log(n_h) + max(
+            cfg.z * (se if math.isfinite(se) else 0.0), cfg.min_margin
+        )
+        clear = bool(not note and delta > penalty)
+        out.append(
+            CandidateFit(
+                effect=f.effect,
+                params=dict(f.params),
+                stderr=dict(f.stderr),
+                n_params=k,
+                train_delta_loglik=f.train_delta,
+                delta_loglik=delta,
+                penalty=penalty,
+                heldout_rmse=rmse,
+                heldout_nll=nll,
+                tracking_rmse=trk,
+                clear=clear,
+                size=size,
+                evaluations=f.evaluations,
+                note=note,
+                delta_se=se,
+                heldout_std=std,
+            )
+        )
+    return out
+
+
+def _margin_key(c: CandidateFit) -> float:
+    return c.delta_loglik - c.penalty if math.isfinite(c.delta_loglik) else -math.inf
+
+
+def verdict(
+    cands: Sequence[CandidateFit], cfg: DiscrepancyConfig, n_seeds: int
+) -> tuple[CandidateFit | None, tuple[str, ...]]:
+    """Winner and the ambiguous pair (module docstring, 4)."""
+    clear = sorted((c for c in cands if c.clear), key=_margin_key, reverse=True)
+    if not clear:
+        return None, ()
+    win = clear[0]
+    if len(clear) > 1:
+        gap = win.delta_loglik - clear[1].delta_loglik
+        # the nominal score is common to both deltas: only their own noise counts
+        joint = math.sqrt((win.heldout_std**2 + clear[1].heldout_std ** 2) / n_seeds)
+        if gap < max(cfg.z * joint, cfg.min_margin):
+            return win, (win.effect, clear[1].effect)
+    return win, ()
+
+
+def _pictures(
+    prep: _Prepared, win: CandidateFit | None, cfg: DiscrepancyConfig, scorer: Scorer
+) -> tuple[Prediction | None, Prediction | None, dict[str, Any]]:
+    if not cfg.pictures:
+        return None, None, {}
+    runs = prep.train + prep.held
+    states = []
+    for r in runs:
+        tr = scorer.trace(NOMINAL, r)
+        states.append((tr.q, tr.v))
+    rcfg = RolloutConfig(horizon=cfg.horizon, stride=cfg.stride, max_starts=cfg.max_starts)
+    try:
+        pred = Predictor(runs, [r in prep.held for r in runs], rcfg, states=states)
+    except ModelError:
+        return None, None, {}
+    nom = pred.prediction(mods_of(()))
+    ext = None if win is None else pred.prediction(mods_of((win.extension(),)))
+    return nom, ext, characterise(nom, float(runs[0].scenario.dt))
+
+
+def _evidence(prep: _Prepared, win: CandidateFit | None, amb: tuple[str, ...]) -> str:
+    nom = prep.nominal_held
+    if win is None:
+        return (
+            f"no candidate beats the nominal model on the held-out data by its margin "
+            f"(nominal one-step prediction RMSE {nom.pred_rmse * 1e3:.2f} mm; Monte-Carlo "
+            f"noise of the evidence {prep.sigma:.1f} nats)."
+        )
+    pstr = ", ".join(
+        f"{k}={v:.4g}+-{win.stderr.get(k, math.nan):.2g}" for k, v in win.params.items()
+    )
+    text = (
+        f"the nominal model explains the held-out observations {win.delta_loglik:.0f} nats "
+        f"worse than with {win.effect} ({pstr}; needed > {win.penalty:.0f}); one-step "
+        f"prediction RMSE {nom.pred_rmse * 1e3:.2f} -> {win.heldout_rmse * 1e3:.2f} mm."
+    )
+    if amb:
+        text += (
+            f" The data cannot tell {amb[0]} from {amb[1]} apart (held-out evidence within "
+            "the margin): both named."
+        )
+    return text
+
+
+def analyse(
+    runs: Sequence[Run],
+    heldout_runs: Sequence[Run] = (),
+    cfg: DiscrepancyConfig | None = None,
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> Analysis:
+    """Fit every candidate effect on the training data, compare on the held-out data."""
+    cfg = cfg or DiscrepancyConfig()
+    say = progress or (lambda s: None)
+    started = time.monotonic()
+    scorer = Scorer(ScoreConfig(particles=cfg.particles, seed=cfg.seed), say)
+    prep = prepare(runs, heldout_runs, cfg, scorer, say)
+    fits = fit_all(prep, scorer, say, started)
+    cands = compare(prep, fits, scorer, cfg)
+    win, amb = verdict(cands, cfg, len(prep.seeds))
+    extended = (
+        None if win is None else scorer.score(Hypothesis.make(win.effect, win.params), prep.held)
+    )
+    nom_pred, ext_pred, resid = _pictures(prep, win, cfg, scorer)
+    name = "none" if win is None else (" or ".join(amb) if amb else win.effect)
+    cands.sort(key=_margin_key, reverse=True)
+    elapsed = time.monotonic() - started
+    say(f"verdict: {name} ({scorer.evaluations} filter runs, {elapsed:.0f} s)")
+    return Analysis(
+        verdict=name,
+        evidence=_evidence(prep, win, amb),
+        nominal=prep.nominal_held,
+        nominal_train=prep.nominal_train,
+        extended=extended,
+        winner=win,
+        ambiguous=amb,
+        candidates=tuple(cands),
+        residuals=resid,
+        heldout_description=prep.description,
+        nominal_prediction=nom_pred,
+        extended_prediction=ext_pred,
+        settings={
+            "score": "filter log predictive likelihood, summed over the observations",
+            "particles": cfg.particles,
+            "seed": cfg.seed,
+            "noise_seeds": list(cfg.noise_seeds),
+            "z": cfg.z,
+            "min_margin_nats": cfg.min_margin,
+            "screen_nats": prep.screen,
+            "rollout_horizon_steps": cfg.horizon,
+        },
+        mc_noise=prep.sigma,
+        filter_runs=scorer.evaluations,
+        seconds=elapsed,
+    )
