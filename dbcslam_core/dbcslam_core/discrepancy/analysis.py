@@ -4,9 +4,11 @@
    runs (`scoring.Scorer`: the filter's summed log predictive likelihood, fixed seed:
    common random numbers across all candidates and parameters) and on the held-out runs
    with the seed and `noise_seeds` (mean and Monte-Carlo std of the held-out score).
-2. fit: every candidate effect on the training runs (`fitting.fit_effect`); an effect whose
-   coarse grid does not beat the nominal training score by `screen` nats is not refined and
-   cannot be named (saves filter runs; the held-out test below decides).
+2. fit: every candidate effect on the training runs (`fitting.fit_effect`): first the
+   coarse grids of all; the `refine_best` (3) effects with the largest training gain above
+   `screen` nats are then refined (golden section) and go on to the held-out test; the
+   others cannot be named (this saves filter runs: a winner must also fit the training
+   runs among the best; 3 keeps mass_scale / input_gain together with a third).
 3. compare: each refined fit is scored on the held-out runs with the same seeds;
    delta_loglik = mean held-out evidence over the nominal model's, with standard error
    se = sqrt(std_ext^2 / n + std_nom^2 / n) from the seed-to-seed spread (a mis-specified
@@ -18,7 +20,9 @@
 4. verdict: the clear candidate with the largest delta_loglik - penalty, or `none`; when
    the second clear candidate's held-out evidence is within z standard errors of the
    winner's (their own seed-to-seed spreads; at least `min_margin`), both are named (the
-   data cannot tell them apart: mass_scale k and input_gain 1/k predict the same motion).
+   data cannot tell them apart). mass_scale k and input_gain 1/k predict the same motion
+   in this model (gravity and friction scale with the mass): when the winner is one of
+   them and the other is clear too, both are always named (`EQUIVALENT`).
 
 The open-loop rollouts (`rollouts`) from the filter's posterior means are pictures for the
 report only.
@@ -46,6 +50,9 @@ __all__ = ["DiscrepancyConfig", "analyse"]
 
 NOMINAL = Hypothesis()
 
+EQUIVALENT: tuple[frozenset[str], ...] = (frozenset({"mass_scale", "input_gain"}),)
+"""Effects that predict the same motion (kinematic data cannot tell them apart)."""
+
 
 @dataclass(frozen=True)
 class DiscrepancyConfig:
@@ -54,7 +61,8 @@ class DiscrepancyConfig:
     particles / seed: the scoring filter (fixed seed = common random numbers);
     noise_seeds: further seeds of the held-out scores (Monte-Carlo mean and noise); z:
     margins in standard errors (module docstring); min_margin (nats): floor of the margins;
-    screen (nats): training gain needed to refine an effect; effects: candidate names
+    screen (nats): training gain needed to refine an effect; refine_best: how many of the
+    best effects on the training runs are refined and tested held out; effects: candidate names
     (None: `runs.default_effects` that the filter can score); holdout_fraction: held-out
     tail of a single run without held-out runs;
     horizon, stride, max_starts: the rollout pictures (`rollouts.RolloutConfig`);
@@ -67,6 +75,7 @@ class DiscrepancyConfig:
     z: float = 3.0
     min_margin: float = 10.0
     screen: float = 30.0
+    refine_best: int = 3
     effects: tuple[str, ...] | None = None
     holdout_fraction: float = 0.4
     horizon: int = 20
@@ -87,6 +96,7 @@ class _Prepared:
     sigma: float
     screen: float
     seeds: tuple[int, ...]
+    refine_best: int = 3
 
 
 def _effects(cfg: DiscrepancyConfig, run: Run) -> tuple[str, ...]:
@@ -122,7 +132,9 @@ def prepare(
         f"nominal evidence: training {nom_t.loglik:.1f}, held out {mean:.1f} +- {sigma:.1f} "
         f"nats (mean, std over {len(seeds)} filter seeds, {cfg.particles} particles)"
     )
-    return _Prepared(train, held, desc, effects, nom_t, nom_h, mean, sigma, cfg.screen, seeds)
+    return _Prepared(
+        train, held, desc, effects, nom_t, nom_h, mean, sigma, cfg.screen, seeds, cfg.refine_best
+    )
 
 
 def held_scores(
@@ -139,16 +151,30 @@ def held_scores(
 def fit_all(
     prep: _Prepared, scorer: Scorer, say: Callable[[str], None], started: float
 ) -> list[FitResult]:
-    """Fit every candidate effect on the training runs (module docstring, 2)."""
+    """Fit every candidate effect on the training runs (module docstring, 2): the coarse
+    grids of all, then the refinement of the `refine_best` best above the screen."""
+    nom = prep.nominal_train.loglik
+    coarse = [
+        fit_effect(e, prep.train, scorer, nom, prep.screen, refine=False) for e in prep.effects
+    ]
+    above = sorted(
+        (f for f in coarse if f.train_delta >= prep.screen), key=lambda f: -f.train_delta
+    )
+    best = {f.effect for f in above[: prep.refine_best]}
+    say(
+        f"coarse grids done ({time.monotonic() - started:.0f} s); refining "
+        f"{', '.join(sorted(best)) or 'nothing'}"
+    )
     fits = []
-    for i, eff in enumerate(prep.effects):
-        f = fit_effect(eff, prep.train, scorer, prep.nominal_train.loglik, prep.screen)
+    for i, c in enumerate(coarse):
+        eff = c.effect
+        f = fit_effect(eff, prep.train, scorer, nom, prep.screen) if eff in best else c
         fits.append(f)
         ps = ", ".join(f"{k}={v:.4g}" for k, v in f.params.items())
         say(
             f"  [{i + 1}/{len(prep.effects)}, {time.monotonic() - started:.0f} s] {eff}: "
             f"{ps}, training gain {f.train_delta:+.1f} nats"
-            f"{'' if f.refined else ' (below the screen: not refined)'}"
+            f"{'' if f.refined else ' (not refined)'}"
         )
     return fits
 
@@ -166,7 +192,11 @@ def compare(
         size = effect_size(f.effect, f.params, sc)
         note = ""
         if not f.refined:
-            note = "no training gain above the screen"
+            note = (
+                "no training gain above the screen"
+                if f.train_delta < prep.screen
+                else "not among the best effects on the training runs"
+            )
         elif f.at_bound:
             note = "estimate at a bound of the search range (not a plausible fit)"
         elif size < 1.0:
@@ -217,6 +247,11 @@ def verdict(
     if not clear:
         return None, ()
     win = clear[0]
+    for pair in EQUIVALENT:
+        if win.effect in pair:
+            other = [c for c in clear[1:] if c.effect in pair]
+            if other:
+                return win, (win.effect, other[0].effect)
     if len(clear) > 1:
         gap = win.delta_loglik - clear[1].delta_loglik
         # the nominal score is common to both deltas: only their own noise counts

@@ -1,8 +1,9 @@
 """Fitting an effect's parameters by maximising the filter's evidence on the training runs.
 
 One parameter (`fit_1d`): the coarse grid of its `ParamSpace` (plus the nominal value),
-walked outwards from the start value on each side until a point scores below the start
-value (the score is taken as unimodal along one parameter at this resolution); when the
+walked outwards from the start value on each side until two points in a row score below
+the start value (the score is taken as unimodal along one parameter at this resolution,
+up to single points where the filter lost track); when the
 best grid point beats the starting value by less than the screening margin the effect is
 not refined (it cannot be named anyway: `analysis`). Otherwise the bracket
 between the best grid point's neighbours is refined by golden-section search (in the search
@@ -78,19 +79,23 @@ def fit_1d(
     screen: float,
     *,
     golden_steps: int = 4,
+    refine: bool = True,
 ) -> _OneD:
     """Maximise score(make(x)) over x in sp (module docstring). base = (x0, score at x0)."""
     pts: dict[float, float] = {sp.to_u(base[0]): base[1]}
-    # the grid outwards from the start value on each side; a side stops at the first point
-    # that scores below the start value (the score falls away from it)
+    # the grid outwards from the start value on each side; a side stops after two points in
+    # a row that score below the start value (one alone may be a point where the filter
+    # lost track: the score of a mis-specified model is rough)
     u_base = sp.to_u(base[0])
     lower = sorted((x for x in sp.grid if sp.to_u(x) < u_base), reverse=True)
     upper = sorted(x for x in sp.grid if sp.to_u(x) > u_base)
     for side in (lower, upper):
+        below = 0
         for x in side:
             val = score(make(x))
             pts[sp.to_u(x)] = val
-            if val < base[1]:
+            below = below + 1 if val < base[1] else 0
+            if below == 2:
                 break
 
     def best() -> tuple[float, float]:
@@ -105,6 +110,9 @@ def fit_1d(
     u0, l0 = best()
     if l0 - base[1] < screen:
         return _OneD(base[0], math.inf, base[1], False, False, _points(sp, pts))
+    if not refine:  # coarse stage only (`analysis.fit_all` refines the best effects)
+        x0 = sp.from_u(u0)
+        return _OneD(x0, math.inf, l0, sp.at_bound(x0), False, _points(sp, pts))
     grid_u = sorted(pts)
     if u0 == grid_u[0] and sp.lo != base[0]:  # best at the end of the grid: the bound too
         ev(sp.to_u(sp.lo))
@@ -144,6 +152,8 @@ def fit_effect(
     scorer: Scorer,
     nominal_loglik: float,
     screen: float,
+    *,
+    refine: bool = True,
 ) -> FitResult:
     """Fit `effect` on `runs` (module docstring); nominal_loglik: the nominal score there."""
     sc = runs[0].scenario
@@ -164,7 +174,7 @@ def fit_effect(
         def make(x: float, name: str = sp.name) -> Hypothesis:
             return Hypothesis.make(effect, {**cur, name: x})
 
-        res = fit_1d(make, sp, score, (cur[sp.name], ll), screen)
+        res = fit_1d(make, sp, score, (cur[sp.name], ll), screen, refine=refine)
         cur[sp.name] = res.x
         stderr[sp.name] = res.stderr
         ll = res.ll

@@ -43,12 +43,15 @@ F64 = NDArray[np.float64]
 @dataclass(frozen=True)
 class ScoreConfig:
     """particles / seed of the scoring filter (fixed seed: common random numbers); skip:
-    initial steps left out of the prediction RMSE; filter_overrides: extra `FilterConfig`
+    initial steps of each run left out of the score and the RMSEs (the filter runs over
+    them: it locks on to the unknown initial velocity there, and a sensor-delay hypothesis
+    has no inputs from before the recording; must exceed the largest delay searched,
+    0.15 s at dt 0.01); filter_overrides: extra `FilterConfig`
     fields on top of the scenario preset (`SCORE_OVERRIDES` per scenario kind first)."""
 
     particles: int = 300
     seed: int = 0
-    skip: int = 30
+    skip: int = 20
     filter_overrides: tuple[tuple[str, object], ...] = ()
 
 
@@ -67,7 +70,12 @@ class RunTrace:
 
     @property
     def loglik(self) -> float:
+        """Summed log predictive likelihood (all steps)."""
         return -math.inf if self.failed else float(np.nansum(self.ll))
+
+    def loglik_from(self, skip: int) -> float:
+        """Summed log predictive likelihood from the `skip`-th sample on."""
+        return -math.inf if self.failed else float(np.nansum(self.ll[skip:]))
 
 
 @dataclass(frozen=True)
@@ -127,7 +135,8 @@ class Scorer:
             self.evaluations += 1
             self.say(
                 f"    filter run {self.evaluations}: {hyp.label()} on {run.name} (seed {s}): "
-                f"{tr.loglik:.1f} nats ({time.process_time() - t0:.1f} s CPU)"
+                f"{tr.loglik_from(self.cfg.skip):.1f} nats "
+                f"({time.process_time() - t0:.1f} s CPU)"
             )
         return self._cache[key]
 
@@ -148,8 +157,10 @@ class Scorer:
         failed = any(tr.failed for tr in traces)
         return ModelScore(
             hypothesis=hyp,
-            loglik=-math.inf if failed else float(sum(tr.loglik for tr in traces)),
-            n_obs=int(sum(r.n_observed for r in runs)),
+            loglik=-math.inf
+            if failed
+            else float(sum(tr.loglik_from(self.cfg.skip) for tr in traces)),
+            n_obs=int(sum(np.sum(np.isfinite(tr.ll[self.cfg.skip :])) for tr in traces)),
             pred_rmse=float(np.sqrt(np.mean(np.sum(p**2, -1)))) if p.size else math.nan,
             track_rmse=float(np.sqrt(np.mean(np.sum(t**2, -1)))) if t.size else math.nan,
             traces=traces,
