@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..dynamics import PlanarModel, State
 from ..errors import DbcSlamError, ModelError
-from ..extensions import EFFECTS, ModelExtension
+from ..extensions import ModelExtension
 from ..geometry import contact_kinematics
 from ..lcp import PGSSolver
 from ..scenario import Scenario
@@ -160,33 +160,6 @@ class Mods:
             mass=mass,
             rim=rim,
         )
-
-
-_BATCH_FIELD: dict[str, str] = {
-    "friction_scale": "scale",
-    "friction_patch": "patch",
-    "viscous_damping": "b",
-    "input_gain": "gain",
-    "sensor_delay": "delay",
-    "sensor_bias": "bias",
-    "support_friction": "mu_s",
-}
-
-
-def _mods_for(effect: str, values: F64) -> Mods:
-    """Mods for G parameter vectors values[G, k] of one effect (EFFECTS parameter order)."""
-    if effect not in _BATCH_FIELD:
-        msg = f"effect {effect!r} changes the model itself (no batched form)"
-        raise ModelError(msg)
-    m = Mods.nominal(values.shape[0])
-    name = _BATCH_FIELD[effect]
-    val = values[:, :3].copy() if name in ("patch", "bias") else values[:, 0].copy()
-    return Mods(**{**m.__dict__, name: val})
-
-
-def _param_names(effect: str) -> tuple[str, ...]:
-    # order used in value vectors (sensor_bias: x, y, yaw; patch: x_min, x_max, mu)
-    return EFFECTS[effect]
 
 
 # ------------------------------------------------------------------------------- predictor
