@@ -15,7 +15,9 @@ a training run and an independent held-out run; clean draws hide nothing. Each d
 * none: nothing named (on clean draws: the right answer).
 
 Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table) after every
-draw, so an interrupted run leaves its partial table; progress on stderr.
+draw, so an interrupted run leaves its partial table; progress on stderr. Parts of the
+benchmark can run as separate processes (``--start``, ``--draws``, ``--clean``) and be
+merged: ``python -m dbcslam_ros.science --out DIR --merge PART_DIR ...``.
 """
 
 from __future__ import annotations
@@ -152,6 +154,19 @@ def run(out: Path, draws: int, clean: int, cfg: DiscrepancyConfig, start: int = 
         )
 
 
+def merge(out: Path, parts: list[Path]) -> None:
+    """Combine the science.json of benchmark parts (one row per draw) into DIR."""
+    rows: dict[tuple[int, bool], dict[str, Any]] = {}
+    for part in parts:
+        for r in json.loads((part / "science.json").read_text()):
+            rows[(int(r["index"]), bool(r["clean"]))] = r
+    ordered = [rows[k] for k in sorted(rows, key=lambda k: (k[1], k[0]))]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "science.json").write_text(json.dumps(ordered, indent=1) + "\n")
+    (out / "science.md").write_text(_table(ordered))
+    print(_table(ordered).split("\n\n")[0])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m dbcslam_ros.science",
@@ -162,7 +177,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clean", type=int, default=30, help="clean draws (30)")
     ap.add_argument("--start", type=int, default=0, help="first draw index (0)")
     ap.add_argument("--particles", type=int, default=300, help="scoring filter particles")
+    ap.add_argument(
+        "--merge", nargs="+", type=Path, default=None, help="merge the results of these dirs"
+    )
     args = ap.parse_args(argv)
+    if args.merge:
+        merge(args.out, args.merge)
+        return 0
     if args.draws < 0 or args.clean < 0 or args.particles < 1:
         ap.error("--draws/--clean must be >= 0 and --particles >= 1")
     cfg = DiscrepancyConfig(particles=args.particles, pictures=False)
