@@ -31,7 +31,7 @@ from dbcslam_core.discrepancy import (
     smooth_states,
     split_runs,
 )
-from dbcslam_core.discrepancy.analysis import compare, verdict
+from dbcslam_core.discrepancy.analysis import HeldScores, beats, compare, verdict
 from dbcslam_core.discrepancy.fitting import FitResult, fit_1d
 from dbcslam_core.discrepancy.report import CandidateFit
 from dbcslam_core.extensions import ModelExtension
@@ -154,18 +154,10 @@ def test_estimate_at_a_bound_is_never_named() -> None:
     sc = edge_scenario()
     run = Run("r", sc, np.arange(3) * 0.01, np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 0)))
     nom = _FakeScore(0.0)
+    held = HeldScores(0.0, 0.0, 1.0, (0.0, 0.0, 0.0))
     prep = _Prepared(
-        [run],
-        [run],
-        "",
-        ("viscous_damping",),
-        nom,
-        nom,
-        0.0,
-        1.0,
-        30.0,
-        (0, 1, 2),  # type: ignore[arg-type]
-    )
+        [run], [run], "", ("viscous_damping",), nom, nom, held, 30.0, (0, 1, 2)  # type: ignore[arg-type]
+    )  # fmt: skip
     fits = [
         FitResult("viscous_damping", {"b": 8.0}, {"b": math.inf}, 10.0, 5000.0, True, True, 9),
         FitResult("input_gain", {"factor": 1.4}, {"factor": 0.01}, 10.0, 4000.0, False, True, 9),
@@ -179,10 +171,22 @@ def test_estimate_at_a_bound_is_never_named() -> None:
 
 
 def _cand(effect: str, delta: float, std: float) -> CandidateFit:
+    """A clear candidate whose held-out seeds scatter by `std` below its evidence."""
     return CandidateFit(
         effect, {"factor": 1.3}, {"factor": 0.1}, 1, delta, delta, 20.0,
-        0.01, -5.0, 0.01, True, 3.0, 5, heldout_std=std,
+        0.01, -5.0, 0.01, True, 3.0, 5, heldout_std=std, heldout_lme=delta,
+        heldout_best=delta + 1.0,
     )  # fmt: skip
+
+
+def test_one_sided_monte_carlo_margin() -> None:
+    """A model beats another when its evidence exceeds the other's best seed by the margin
+    plus z of its own standard errors (a lost-track seed of the other does not help it)."""
+    assert beats(100.0, 3.0, 60.0, margin=10.0, z=3.0, n=3)
+    assert not beats(100.0, 3.0, 95.0, margin=10.0, z=3.0, n=3)
+    assert not beats(100.0, 60.0, 60.0, margin=10.0, z=3.0, n=3)  # its own noise too large
+    hs = HeldScores(0.0, 0.0, 0.0, ())
+    assert hs.lme == 0.0
 
 
 def test_indistinguishable_pair_is_named_together() -> None:

@@ -9,18 +9,20 @@
    `screen` nats are then refined (golden section) and go on to the held-out test; the
    others cannot be named (this saves filter runs: a winner must also fit the training
    runs among the best; 3 keeps mass_scale / input_gain together with a third).
-3. compare: each refined fit is scored on the held-out runs with the same seeds;
-   delta_loglik = mean held-out evidence over the nominal model's, with standard error
-   se = sqrt(std_ext^2 / n + std_nom^2 / n) from the seed-to-seed spread (a mis-specified
-   model's filter loses track at times, so its score is much noisier than a well-specified
-   one's). It beats the nominal model clearly when delta_loglik > k/2 ln(N_heldout) +
-   z se (a BIC-like parameter penalty plus the measured Monte-Carlo margin), the effect is
-   large enough to matter (`effects.effect_size` >= 1) and its estimate is not at a bound
-   of its search range.
+3. compare: each refined fit is scored on the held-out runs with the same seeds; a model's
+   held-out evidence is the log-mean-exp of its seed scores (`HeldScores`: the Monte-Carlo
+   estimate of the log marginal likelihood); delta_loglik = that of the extended model
+   minus the nominal model's. The Monte-Carlo noise is one-sided: a mis-specified model's
+   filter loses track at times and only ever scores lower (seed-to-seed std of hundreds of
+   nats, against a few nats for a well-specified model). A candidate beats the nominal
+   model clearly (`beats`) when its evidence exceeds the nominal model's BEST seed by
+   k/2 ln(N_heldout) + min_margin (a BIC-like parameter penalty) + z x its own standard
+   error, the effect is large enough to matter (`effects.effect_size` >= 1) and its
+   estimate is not at a bound of its search range.
 4. verdict: the clear candidate with the largest delta_loglik - penalty, or `none`; when
-   the second clear candidate's held-out evidence is within z standard errors of the
-   winner's (their own seed-to-seed spreads; at least `min_margin`), both are named (the
-   data cannot tell them apart). mass_scale k and input_gain 1/k predict the same motion
+   the winner does not beat the second clear candidate in the same sense (by min_margin +
+   z x its own standard error over the second's best seed), both are named (the data
+   cannot tell them apart). mass_scale k and input_gain 1/k predict the same motion
    in this model (gravity and friction scale with the mass): when the winner is one of
    them and the other is clear too, both are always named (`EQUIVALENT`).
 
@@ -92,8 +94,7 @@ class _Prepared:
     effects: tuple[str, ...]
     nominal_train: ModelScore
     nominal_held: ModelScore
-    held_mean: float
-    sigma: float
+    nom_held: HeldScores
     screen: float
     seeds: tuple[int, ...]
     refine_best: int = 3
@@ -127,25 +128,52 @@ def prepare(
         msg = "the filter loses track of the data under the nominal model (no finite score)"
         raise ModelError(msg)
     seeds = (cfg.seed, *cfg.noise_seeds)
-    mean, sigma = held_scores(NOMINAL, held, scorer, seeds)
+    hs = held_scores(NOMINAL, held, scorer, seeds)
     say(
-        f"nominal evidence: training {nom_t.loglik:.1f}, held out {mean:.1f} +- {sigma:.1f} "
-        f"nats (mean, std over {len(seeds)} filter seeds, {cfg.particles} particles)"
+        f"nominal evidence: training {nom_t.loglik:.1f}, held out {hs.lme:.1f} (std "
+        f"{hs.std:.1f} nats over {len(seeds)} filter seeds, {cfg.particles} particles)"
     )
     return _Prepared(
-        train, held, desc, effects, nom_t, nom_h, mean, sigma, cfg.screen, seeds, cfg.refine_best
+        train, held, desc, effects, nom_t, nom_h, hs, cfg.screen, seeds, cfg.refine_best
     )
+
+
+@dataclass(frozen=True)
+class HeldScores:
+    """Held-out scores of one model over the filter seeds (nats).
+
+    lme: log-mean-exp of the seeds' scores, the Monte-Carlo estimate of the log marginal
+    likelihood (the particle filter's likelihood estimate is unbiased in p, so its log is
+    biased low, the more so the worse the model fits: a filter that loses track only ever
+    scores lower); best: the largest seed score; std: the seeds' spread; values: all.
+    """
+
+    lme: float
+    best: float
+    std: float
+    values: tuple[float, ...]
 
 
 def held_scores(
     hyp: Hypothesis, runs: Sequence[Run], scorer: Scorer, seeds: Sequence[int]
-) -> tuple[float, float]:
-    """Mean and std (nats) of the held-out score over filter seeds (-inf when the filter
-    loses all particles under any seed; std 0 with one seed)."""
-    vals = [scorer.score(hyp, runs, s).loglik for s in seeds]
-    if not all(math.isfinite(v) for v in vals):
-        return -math.inf, math.inf
-    return float(sum(vals) / len(vals)), float(statistics.stdev(vals)) if len(vals) > 1 else 0.0
+) -> HeldScores:
+    """The held-out scores of `hyp` over `seeds` (-inf when the filter loses all particles
+    under every seed)."""
+    vals = tuple(scorer.score(hyp, runs, s).loglik for s in seeds)
+    fin = [v for v in vals if math.isfinite(v)]
+    if not fin:
+        return HeldScores(-math.inf, -math.inf, math.inf, vals)
+    top = max(fin)
+    lme = top + math.log(sum(math.exp(v - top) for v in fin) / len(vals))
+    std = float(statistics.stdev(fin)) if len(fin) > 1 else 0.0
+    return HeldScores(lme, top, std, vals)
+
+
+def beats(a_lme: float, a_std: float, b_best: float, *, margin: float, z: float, n: int) -> bool:
+    """Model A's held-out evidence exceeds model B's by more than `margin` plus z standard
+    errors of A's own Monte-Carlo noise, against B's best seed (B's lower seeds may be
+    track losses: one-sided noise)."""
+    return a_lme - b_best > margin + z * a_std / math.sqrt(max(n, 1))
 
 
 def fit_all(
@@ -201,17 +229,24 @@ def compare(
             note = "estimate at a bound of the search range (not a plausible fit)"
         elif size < 1.0:
             note = f"effect too small to matter (size {size:.2f} < 1)"
-        delta, se, std, rmse, nll, trk = (math.nan,) * 6
+        delta, std, rmse, nll, trk = (math.nan,) * 5
+        bic = 0.5 * k * math.log(n_h)
+        penalty = bic + cfg.min_margin
+        hs: HeldScores | None = None
         if f.refined:
-            mean, std = held_scores(f.hypothesis, prep.held, scorer, prep.seeds)
+            hs = held_scores(f.hypothesis, prep.held, scorer, prep.seeds)
             s = scorer.score(f.hypothesis, prep.held)
-            delta = mean - prep.held_mean
-            se = math.sqrt((std**2 + prep.sigma**2) / n_s)
-            rmse, nll, trk = s.pred_rmse, -mean / max(s.n_obs, 1), s.track_rmse
-        penalty = 0.5 * k * math.log(n_h) + max(
-            cfg.z * (se if math.isfinite(se) else 0.0), cfg.min_margin
+            delta, std = hs.lme - prep.nom_held.lme, hs.std
+            rmse, nll, trk = s.pred_rmse, -hs.lme / max(s.n_obs, 1), s.track_rmse
+            penalty = (prep.nom_held.best - prep.nom_held.lme) + bic + cfg.min_margin
+            penalty += cfg.z * std / math.sqrt(n_s)
+        clear = bool(
+            not note
+            and hs is not None
+            and beats(
+                hs.lme, hs.std, prep.nom_held.best, margin=bic + cfg.min_margin, z=cfg.z, n=n_s
+            )
         )
-        clear = bool(not note and delta > penalty)
         out.append(
             CandidateFit(
                 effect=f.effect,
@@ -228,8 +263,11 @@ def compare(
                 size=size,
                 evaluations=f.evaluations,
                 note=note,
-                delta_se=se,
+                delta_se=std / math.sqrt(n_s) if math.isfinite(std) else math.nan,
                 heldout_std=std,
+                heldout_lme=math.nan if hs is None else hs.lme,
+                heldout_best=math.nan if hs is None else hs.best,
+                heldout_seeds=() if hs is None else hs.values,
             )
         )
     return out
@@ -253,11 +291,16 @@ def verdict(
             if other:
                 return win, (win.effect, other[0].effect)
     if len(clear) > 1:
-        gap = win.delta_loglik - clear[1].delta_loglik
-        # the nominal score is common to both deltas: only their own noise counts
-        joint = math.sqrt((win.heldout_std**2 + clear[1].heldout_std ** 2) / n_seeds)
-        if gap < max(cfg.z * joint, cfg.min_margin):
-            return win, (win.effect, clear[1].effect)
+        sec = clear[1]
+        if not beats(
+            win.heldout_lme,
+            win.heldout_std,
+            sec.heldout_best,
+            margin=cfg.min_margin,
+            z=cfg.z,
+            n=n_seeds,
+        ):
+            return win, (win.effect, sec.effect)
     return win, ()
 
 
@@ -287,7 +330,7 @@ def _evidence(prep: _Prepared, win: CandidateFit | None, amb: tuple[str, ...]) -
         return (
             f"no candidate beats the nominal model on the held-out data by its margin "
             f"(nominal one-step prediction RMSE {nom.pred_rmse * 1e3:.2f} mm; Monte-Carlo "
-            f"noise of the evidence {prep.sigma:.1f} nats)."
+            f"noise of the evidence {prep.nom_held.std:.1f} nats)."
         )
     pstr = ", ".join(
         f"{k}={v:.4g}+-{win.stderr.get(k, math.nan):.2g}" for k, v in win.params.items()
@@ -352,7 +395,7 @@ def analyse(
             "screen_nats": prep.screen,
             "rollout_horizon_steps": cfg.horizon,
         },
-        mc_noise=prep.sigma,
+        mc_noise=prep.nom_held.std,
         filter_runs=scorer.evaluations,
         seconds=elapsed,
     )

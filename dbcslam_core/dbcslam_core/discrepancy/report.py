@@ -44,6 +44,9 @@ class CandidateFit:
     note: str = ""
     delta_se: float = math.nan
     heldout_std: float = math.nan  # seed-to-seed std of its own held-out score (nats)
+    heldout_lme: float = math.nan  # held-out evidence: log-mean-exp over the seeds (nats)
+    heldout_best: float = math.nan  # its best seed (nats)
+    heldout_seeds: tuple[float, ...] = ()
 
     def extension(self) -> ModelExtension:
         return ModelExtension.make(self.effect, **self.params)
@@ -55,6 +58,7 @@ class CandidateFit:
             "stderr": {k: _r(v) for k, v in self.stderr.items()},
             "delta_loglik": _r(self.delta_loglik, 3),
             "delta_loglik_se": _r(self.delta_se, 3),
+            "heldout_loglik_seeds": [_r(v, 2) for v in self.heldout_seeds],
             "train_delta_loglik": _r(self.train_delta_loglik, 3),
             "penalty": _r(self.penalty, 3),
             "heldout_rmse": _r(self.heldout_rmse),
