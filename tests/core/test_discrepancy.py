@@ -59,6 +59,12 @@ def _close(name: str, got: float, true: float) -> bool:
     return abs(got - true) <= 0.25 * abs(true)
 
 
+# each analysis is ~40 filter runs (~1.5 s CPU each here): longer than the default per-test
+# timeout when the machine is shared
+SLOW = pytest.mark.timeout(1500)
+
+
+@SLOW
 @pytest.mark.parametrize("draw", [0, 1])
 def test_hidden_effect_drawn_at_random_is_found(draw: int) -> None:
     rng = np.random.default_rng([20261125, draw])
@@ -83,6 +89,7 @@ def test_hidden_effect_drawn_at_random_is_found(draw: int) -> None:
     assert ModelExtension.from_dict(doc["extended"]).effect == res.winner.effect
 
 
+@SLOW
 def test_clean_data_give_none() -> None:
     train, held = _pair(77, None)
     res = analyse([train], [held], CFG)
@@ -94,6 +101,7 @@ def test_clean_data_give_none() -> None:
     assert all(not c.clear for c in res.candidates)
 
 
+@SLOW
 def test_effect_below_resolution_gives_none() -> None:
     """A 2 % friction scale is far below what 6 s at 1 cm noise resolve."""
     ext = ModelExtension.make("friction_scale", factor=1.02)

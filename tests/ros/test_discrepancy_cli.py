@@ -49,6 +49,7 @@ def damped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, ModelE
     return bag, held, ext
 
 
+@pytest.mark.timeout(1500)  # one analysis: ~40 filter runs
 def test_cli_names_the_hidden_effect_and_writes_the_model(
     damped: tuple[Path, Path, ModelExtension],
     tmp_path: Path,
@@ -78,6 +79,7 @@ def test_cli_names_the_hidden_effect_and_writes_the_model(
     assert "verdict: viscous_damping" in capsys.readouterr().out
 
 
+@pytest.mark.timeout(1500)
 def test_truth_topics_do_not_matter(
     damped: tuple[Path, Path, ModelExtension], tmp_path: Path
 ) -> None:
@@ -94,6 +96,7 @@ def test_truth_topics_do_not_matter(
     assert da["extended"]["params"] == db["extended"]["params"]
 
 
+@pytest.mark.timeout(1500)
 def test_no_effect_bag_gives_none_and_an_empty_model(tmp_path: Path) -> None:
     bag = write_trajectory_bag(_trajectory((), seed=11), tmp_path / "plain")
     out = tmp_path / "plain.json"

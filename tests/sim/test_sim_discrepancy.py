@@ -49,6 +49,7 @@ def _rng(name: str) -> np.random.Generator:
 
 
 CFG = DiscrepancyConfig(particles=200, pictures=False)
+pytestmark = pytest.mark.timeout(1500)  # one analysis: ~40 filter runs
 
 
 def test_pybullet_hidden_viscous_damping() -> None:
