@@ -316,7 +316,7 @@ def _pictures(
         states.append((tr.q, tr.v))
     rcfg = RolloutConfig(horizon=cfg.horizon, stride=cfg.stride, max_starts=cfg.max_starts)
     try:
-        pred = Predictor(runs, [r in prep.held for r in runs], rcfg, states=states)
+        pred = Predictor(runs, [any(r is h for h in prep.held) for r in runs], rcfg, states=states)
     except ModelError:
         return None, None, {}
     nom = pred.prediction(mods_of(()))
