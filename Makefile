@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PKGS   := dbcslam_core dbcslam_ros sim_publisher
 
-.PHONY: venv test lint typecheck pytest demo experiments bench clean
+.PHONY: venv test lint typecheck pytest demo experiments bench science clean
 
 $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py)
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,9 @@ experiments: venv
 	$(BIN)/python -m dbcslam_ros.experiments
 	$(BIN)/python -m dbcslam_ros.experiments_sim
 	$(BIN)/python -m dbcslam_ros.readme_results
+
+science: venv
+	$(BIN)/python -m dbcslam_ros.science --out out/science
 
 bench: venv
 	$(BIN)/python -m dbcslam_ros.bench

@@ -40,11 +40,14 @@ from .geometry import contact_kinematics, wrap_angle
 from .scenario import Scenario, SurfaceSpec, edge_scenario, gripper_scenario, push_scenario
 
 __all__ = [
+    "EDGE_HIDDEN_EFFECTS",
     "EDGE_ROUGH",
     "PUSH_RECT",
     "PUSH_RECT_MASS",
     "Trajectory",
+    "draw_edge_effect",
     "edge_mu_field",
+    "edge_sweep_trajectory",
     "edge_trajectory",
     "gripper_trajectory",
     "observe",
@@ -248,6 +251,109 @@ def edge_trajectory(
     )
     obs, env_obs = observe(sc, q, env, gen, extensions)
     return Trajectory(sc, t, q, v, u, env, modes, ln, lt, mus, np.array([np.nan]), obs, env_obs)
+
+
+def edge_sweep_trajectory(
+    seed: int = 0,
+    *,
+    duration: float = 10.0,
+    scenario: Scenario | None = None,
+    extensions: Sequence[ModelExtension] = (),
+    rough: tuple[float, float] = EDGE_ROUGH,
+) -> Trajectory:
+    """A long edge run over spatially varying friction (discrepancy analysis data).
+
+    Paper set-up: point mass (scenario default 1 kg, 1 cm pose noise) on the edge y = 0,
+    rough region `rough` (mu 0.9) between smooth edge (mu 0.3). It is dropped from 5 cm and
+    swept right across the rough region and back by a horizontal force from a PD law on a
+    reference sweep x_ref(t) (seeded phase / amplitude jitter; the force is the recorded,
+    known input u, computed from the true state: closed-loop data), which makes it stick in
+    the rough region and slide on the smooth one; two upward force pulses (1.6 m g for
+    0.12 s, seeded times) lift it off the edge (free flights). Hidden `extensions` act in the
+    physics and the sensor (`observe`); the controller sees the true state.
+    """
+    sc = scenario if scenario is not None else edge_scenario()
+    rng = np.random.default_rng([seed, 11])
+    model = PlanarModel(sc, extensions, active_set=True)
+    dt = sc.dt
+    n = round(duration / dt) + 1
+    t = np.arange(n, dtype=np.float64) * dt
+    m, g = sc.body.mass, sc.gravity
+    period = duration * float(rng.uniform(0.9, 1.1))
+    x_lo, x_hi = 0.1 + float(rng.uniform(-0.05, 0.05)), 1.2 + float(rng.uniform(-0.1, 0.1))
+    x_ref = x_lo + (x_hi - x_lo) * 0.5 * (1.0 - np.cos(2.0 * np.pi * t / period))
+    v_ref = np.gradient(x_ref, dt)
+    wobble = 0.15 * m * g * np.sin(2.0 * np.pi * t / float(rng.uniform(0.8, 1.4)))
+    lifts = (float(rng.uniform(0.2, 0.35)) * duration, float(rng.uniform(0.6, 0.8)) * duration)
+    fy = np.zeros(n)
+    for tl in lifts:
+        fy += (
+            1.6
+            * m
+            * g
+            * _smoothstep(t, tl, tl + 0.02)
+            * (1.0 - _smoothstep(t, tl + 0.12, tl + 0.14))
+        )
+    mu = edge_mu_field(rough)
+    q = np.zeros((n, 2))
+    v = np.zeros((n, 2))
+    u = np.zeros((n, 2))
+    modes = np.zeros((n, 1), dtype=np.int64)
+    ln = np.zeros((n, 1))
+    lt = np.zeros((n, 1))
+    mus = np.zeros((n, 1))
+    q[0] = (x_lo, sc.edge_y + 0.05)
+    kin0 = contact_kinematics(sc, q[0], np.zeros(0))
+    modes[0] = np.where(kin0.phi > 1e-9, int(Mode.SEPARATED), int(Mode.STICKING))
+    mus[0] = model.friction(kin0, mu=mu)
+    for k in range(n - 1):
+        fx = m * (40.0 * (x_ref[k] - q[k, 0]) + 10.0 * (v_ref[k] - v[k, 0])) + wobble[k]
+        u[k] = (float(np.clip(fx, -1.5 * m * g, 1.5 * m * g)), fy[k])
+        r = model.step(State(q[k], v[k]), u[k], np.zeros(0), np.zeros(0), mu=mu)
+        q[k + 1], v[k + 1] = r.q, r.v
+        modes[k + 1], ln[k + 1], lt[k + 1], mus[k + 1] = r.modes, r.ln, r.lt, r.mu
+    env = np.zeros((n, 0))
+    obs, env_obs = observe(sc, q, env, np.random.default_rng([seed, 12]), extensions)
+    return Trajectory(sc, t, q, v, u, env, modes, ln, lt, mus, np.array([np.nan]), obs, env_obs)
+
+
+EDGE_HIDDEN_EFFECTS: tuple[str, ...] = (
+    "friction_scale",
+    "viscous_damping",
+    "mass_scale",
+    "input_gain",
+    "sensor_delay",
+    "sensor_bias",
+    "support_friction",
+)
+"""Effects of the contract vocabulary observable in `edge_sweep_trajectory` data (the
+filter path scores them; friction_patch is what the filter's own friction map estimates)."""
+
+
+def draw_edge_effect(rng: np.random.Generator, effect: str | None = None) -> ModelExtension:
+    """A hidden effect of realistic size for the edge (effect uniform over
+    `EDGE_HIDDEN_EFFECTS` unless given).
+
+    factors (friction_scale, mass_scale, input_gain): 1.25-1.6 or its inverse (+-25-60 %);
+    viscous_damping: 1.5-4 N s/m per kg (0.3-0.8 m g at 2 m/s); sensor_delay: 30-80 ms;
+    sensor_bias: y +-1.5-3 cm (1.5-3 noise stds), x within +-1 cm (along the edge a bias
+    is nearly unobservable); support_friction: mu 0.1-0.3.
+    """
+    name = effect if effect is not None else str(rng.choice(EDGE_HIDDEN_EFFECTS))
+    if name in ("friction_scale", "mass_scale", "input_gain"):
+        f = float(rng.uniform(1.25, 1.6))
+        return ModelExtension.make(name, factor=f if rng.random() < 0.5 else 1.0 / f)
+    if name == "viscous_damping":
+        return ModelExtension.make(name, b=float(rng.uniform(1.5, 4.0)))
+    if name == "sensor_delay":
+        return ModelExtension.make(name, seconds=float(rng.uniform(0.03, 0.08)))
+    if name == "sensor_bias":
+        y = float(rng.uniform(0.015, 0.03)) * (1.0 if rng.random() < 0.5 else -1.0)
+        return ModelExtension.make(name, x=float(rng.uniform(-0.01, 0.01)), y=y, yaw=0.0)
+    if name == "support_friction":
+        return ModelExtension.make(name, mu=float(rng.uniform(0.1, 0.3)))
+    msg = f"no edge draw for effect {name!r}; valid: {list(EDGE_HIDDEN_EFFECTS)}"
+    raise ModelError(msg)
 
 
 def gripper_trajectory(

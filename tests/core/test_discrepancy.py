@@ -1,141 +1,260 @@
-"""dbcslam_core.discrepancy: hidden effects in synthetic edge runs are named and recovered.
+"""dbcslam_core.discrepancy: effects hidden at random in edge data with spatially varying
+friction and paper-level noise are found on the filter's own evidence; clean data give
+`none`; an estimate at a bound of its search range is never named.
 
-Data: the edge scenario (point mass on an edge under gravity, 0.5 mm observation noise,
-one friction candidate 0.5 = the nominal friction) driven by the `edge_trajectory` force
-profile (plus force pulses for the delay case), true model = nominal + ONE hidden effect
-whose size is drawn from a seeded generator. The analysis must name the effect, recover
-its parameters (within 25 %, positions within 2 cm) with gain >= 1.5, and say `none` on
-data without a hidden effect.
+Data: `synthetic.edge_sweep_trajectory` (paper edge: rough mu 0.9 region between smooth
+mu 0.3 edge, 1 cm pose noise; the filter's friction candidates are 0.3 / 0.9 and the
+friction map is estimated, never given), 6 s runs (the benchmark `make science` uses 10 s
+and >= 30 draws), one training and one independent held-out run per case. The hidden
+effect and its size are drawn by a seeded generator (`synthetic.draw_edge_effect`).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
 import pytest
-from edge_data import MU, single_mu_edge_scenario
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from dbcslam_core.discrepancy import DiscrepancyConfig, Run, analyse, smooth_states
-from dbcslam_core.dynamics import PlanarModel
+from dbcslam_core.discrepancy import (
+    DiscrepancyConfig,
+    Hypothesis,
+    ParamSpace,
+    Run,
+    ScoreConfig,
+    Scorer,
+    analyse,
+    smooth_states,
+    split_runs,
+)
+from dbcslam_core.discrepancy.analysis import HeldScores, beats, compare, verdict
+from dbcslam_core.discrepancy.fitting import FitResult, fit_1d
+from dbcslam_core.discrepancy.report import CandidateFit
 from dbcslam_core.extensions import ModelExtension
-from dbcslam_core.scenario import Scenario
-from dbcslam_core.synthetic import edge_trajectory, observe, simulate
+from dbcslam_core.scenario import edge_scenario
+from dbcslam_core.synthetic import draw_edge_effect, edge_sweep_trajectory
+
+CFG = DiscrepancyConfig(particles=200, pictures=False)
+DURATION = 6.0
 
 
-def _scenario() -> Scenario:
-    return single_mu_edge_scenario(0.0005)
+def _run(seed: int, exts: tuple[ModelExtension, ...], name: str) -> Run:
+    tr = edge_sweep_trajectory(seed, duration=DURATION, extensions=exts)
+    return Run(name, tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
 
 
 @cache
-def _inputs(pulses: bool) -> tuple[np.ndarray, np.ndarray]:
-    base = edge_trajectory(0, duration=4.0)
-    u = base.u.copy()
-    if pulses:
-        sc = _scenario()
-        sq = np.sign(np.sin(2.0 * np.pi * base.t / 0.4))
-        u[:, 0] += 0.4 * sc.body.mass * sc.gravity * sq * (base.t < 2.5)
-    return base.t, u
+def _pair(seed: int, ext: ModelExtension | None) -> tuple[Run, Run]:
+    exts = () if ext is None else (ext,)
+    return _run(seed, exts, "train"), _run(seed + 1, exts, "held")
 
 
-def edge_run(
-    extensions: tuple[ModelExtension, ...], seed: int = 0, *, pulses: bool = False
-) -> Run:
-    """A synthetic edge run with the given (hidden) extensions."""
-    sc = _scenario()
-    t, u = _inputs(pulses)
-    env = np.zeros((t.size, 0))
-    model = PlanarModel(sc, extensions, active_set=True)
-    q, _v, env, *_ = simulate(model, (0.0, sc.edge_y + 0.1), (1.2, 0.0), u, env, mu=MU)
-    obs, env_obs = observe(sc, q, env, np.random.default_rng(seed), extensions)
-    return Run("edge", sc, t, obs, u, env_obs)
+def _close(name: str, got: float, true: float) -> bool:
+    if name in ("x", "y"):
+        return abs(got - true) <= 0.02
+    return abs(got - true) <= 0.25 * abs(true)
 
 
-def draw_effect(effect: str, rng: np.random.Generator) -> ModelExtension:
-    """A hidden effect of a random but observable size."""
-    if effect == "friction_scale":
-        f = float(rng.uniform(1.4, 1.8)) if rng.random() < 0.5 else float(rng.uniform(0.5, 0.7))
-        return ModelExtension.make(effect, factor=f)
-    if effect == "viscous_damping":
-        return ModelExtension.make(effect, b=float(rng.uniform(0.6, 1.5)))
-    if effect == "sensor_bias":
-        return ModelExtension.make(effect, x=0.0, y=float(rng.uniform(0.006, 0.015)), yaw=0.0)
-    if effect == "sensor_delay":
-        return ModelExtension.make(effect, seconds=0.01 * int(rng.integers(3, 7)))
-    if effect == "support_friction":
-        return ModelExtension.make(effect, mu=float(rng.uniform(0.15, 0.3)))
-    if effect == "friction_patch":
-        x0 = float(rng.uniform(0.35, 0.45))
-        return ModelExtension.make(
-            effect, x_min=x0, x_max=x0 + float(rng.uniform(0.25, 0.35)), mu=1.0
-        )
-    raise AssertionError(effect)
+# each analysis is ~40 filter runs (~1.5 s CPU each here): longer than the default per-test
+# timeout when the machine is shared
+SLOW = pytest.mark.timeout(1500)
 
 
-CFG = DiscrepancyConfig()
-
-
-@pytest.mark.parametrize(
-    "effect",
-    [
-        "friction_scale",
-        "viscous_damping",
-        "sensor_bias",
-        "sensor_delay",
-        "support_friction",
-        "friction_patch",
-    ],
-)
-def test_hidden_effect_is_named_and_recovered(effect: str) -> None:
-    rng = np.random.default_rng([2026, len(effect), ord(effect[-1])])
-    ext = draw_effect(effect, rng)
-    run = edge_run((ext,), seed=int(rng.integers(1000)), pulses=effect == "sensor_delay")
-    res = analyse([run], (), CFG)
-    assert res.verdict == effect, (res.verdict, res.evidence, ext)
-    assert res.winner is not None
-    for name, true in ext.params:
-        got = res.winner.params[name]
-        if name in ("x", "y", "x_min", "x_max"):
-            assert abs(got - true) <= 0.02, (name, got, true)
-        elif name == "yaw":
-            assert abs(got - true) <= 0.01
-        else:
-            assert abs(got - true) <= 0.25 * abs(true), (name, got, true)
-    assert res.gain >= 1.5, res.gain
+@SLOW
+@pytest.mark.parametrize("draw", [0, 1])
+def test_hidden_effect_drawn_at_random_is_found(draw: int) -> None:
+    rng = np.random.default_rng([20261125, draw])
+    ext = draw_edge_effect(rng)
+    train, held = _pair(int(rng.integers(10_000)), ext)
+    res = analyse([train], [held], CFG)
+    assert res.winner is not None, (ext, res.evidence)
+    named = set(res.ambiguous) or {res.winner.effect}
+    assert ext.effect in named, (ext, res.verdict, res.evidence)
+    if res.winner.effect == ext.effect:
+        for name, true in ext.params:
+            assert _close(name, res.winner.params[name], true), (name, res.winner.params, ext)
+    else:  # mass_scale k named together with input_gain 1 / k
+        assert named == {"mass_scale", "input_gain"}
+        assert _close("factor", 1.0 / res.winner.params["factor"], ext.param("factor"))
     doc = res.to_dict()
-    assert doc["verdict"] == effect
-    assert doc["extended"]["effect"] == effect
+    assert doc["extended"]["effect"] == res.winner.effect
+    assert doc["loglik_gain"] > 0.0
     assert doc["gain"] == pytest.approx(
         doc["nominal"]["heldout_rmse"] / doc["extended"]["heldout_rmse"], rel=1e-3
     )
-    loaded = ModelExtension.from_dict(doc["extended"])
-    assert loaded.effect == effect
+    assert ModelExtension.from_dict(doc["extended"]).effect == res.winner.effect
 
 
-def test_no_hidden_effect_gives_none() -> None:
-    res = analyse([edge_run((), seed=3)], (), CFG)
+@SLOW
+def test_clean_data_give_none() -> None:
+    train, held = _pair(77, None)
+    res = analyse([train], [held], CFG)
     assert res.verdict == "none", res.evidence
     assert res.winner is None
-    assert res.to_dict()["extended"]["effect"] == "none"
-    assert res.gain == 1.0
+    doc = res.to_dict()
+    assert doc["extended"]["effect"] == "none"
+    assert doc["gain"] == 1.0
+    assert all(not c.clear for c in res.candidates)
 
 
-def test_mass_scale_and_input_gain_are_not_guessed() -> None:
-    ext = ModelExtension.make("mass_scale", factor=1.5)
-    res = analyse([edge_run((ext,), seed=5)], (), CFG)
-    assert res.winner is not None
-    assert res.winner.effect in ("mass_scale", "input_gain")
-    if res.winner.effect == "input_gain":  # only acceptable when both are named
-        assert set(res.ambiguous) == {"mass_scale", "input_gain"}
-        assert "mass_scale" in res.verdict and "input_gain" in res.verdict
+@SLOW
+def test_effect_below_resolution_gives_none() -> None:
+    """A 2 % friction scale is far below what 6 s at 1 cm noise resolve."""
+    ext = ModelExtension.make("friction_scale", factor=1.02)
+    train, held = _pair(91, ext)
+    res = analyse([train], [held], replace(CFG, effects=("friction_scale", "viscous_damping")))
+    assert res.verdict == "none", res.evidence
 
 
-def test_heldout_runs_are_not_fitted() -> None:
-    ext = ModelExtension.make("viscous_damping", b=1.0)
-    res = analyse([edge_run((ext,), seed=1)], [edge_run((ext,), seed=2)], CFG)
-    assert res.verdict == "viscous_damping"
-    assert "held-out runs" in res.heldout_description
-    assert res.nominal.n_heldout > 0
+# ------------------------------------------------------------------- fitting / boundary
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(min_value=-0.2, max_value=1.2),
+    st.floats(min_value=50.0, max_value=5000.0),
+)
+def test_fit_1d_finds_the_peak_or_flags_the_bound(peak: float, curv: float) -> None:
+    """On a concave score the fit lands near the peak (golden-section refinement) and
+    reports the curvature's stderr; a peak outside the range gives an estimate at the
+    bound, flagged `at_bound`."""
+    sp = ParamSpace("b", 0.0, 1.0, False, 0.0, (0.15, 0.35, 0.6, 0.85))
+
+    def score(h: Hypothesis) -> float:
+        return -curv * (h.param_dict["b"] - peak) ** 2
+
+    res = fit_1d(
+        lambda x: Hypothesis.make("viscous_damping", {"b": x}),
+        sp,
+        score,
+        (0.0, -curv * peak**2),
+        0.0 if peak > 0.02 else math.inf,
+    )
+    if peak >= 1.0:
+        assert res.at_bound and res.x == pytest.approx(1.0)
+    elif 0.1 < peak < 0.95:
+        assert not res.at_bound
+        assert res.x == pytest.approx(peak, abs=0.06)
+        if math.isfinite(res.stderr):
+            assert res.stderr == pytest.approx(1.0 / math.sqrt(2.0 * curv), rel=1e-6)
+
+
+class _FakeScore:
+    def __init__(self, ll: float) -> None:
+        self.loglik = ll
+        self.pred_rmse = 0.01
+        self.track_rmse = 0.005
+        self.n_obs = 500
+
+
+class _FakeScorer:
+    """Held-out scores by hypothesis: every candidate beats the nominal model by far."""
+
+    def score(self, h: Hypothesis, runs: object, seed: int | None = None) -> _FakeScore:
+        return _FakeScore(0.0 if h.effect == "none" else 5000.0 + (seed or 0))
+
+
+def test_estimate_at_a_bound_is_never_named() -> None:
+    from dbcslam_core.discrepancy.analysis import _Prepared
+
+    sc = edge_scenario()
+    run = Run("r", sc, np.arange(3) * 0.01, np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 0)))
+    nom = _FakeScore(0.0)
+    held = HeldScores(0.0, 0.0, 1.0, (0.0, 0.0, 0.0))
+    prep = _Prepared(
+        [run], [run], "", ("viscous_damping",), nom, nom, held, 30.0, (0, 1, 2)  # type: ignore[arg-type]
+    )  # fmt: skip
+    fits = [
+        FitResult("viscous_damping", {"b": 8.0}, {"b": math.inf}, 10.0, 5000.0, True, True, 9),
+        FitResult("input_gain", {"factor": 1.4}, {"factor": 0.01}, 10.0, 4000.0, False, True, 9),
+    ]
+    cands = compare(prep, fits, _FakeScorer(), CFG)  # type: ignore[arg-type]
+    by = {c.effect: c for c in cands}
+    assert not by["viscous_damping"].clear and "bound" in by["viscous_damping"].note
+    assert by["input_gain"].clear
+    win, amb = verdict(cands, CFG, 3)
+    assert win is not None and win.effect == "input_gain" and amb == ()
+
+
+def _cand(effect: str, delta: float, std: float) -> CandidateFit:
+    """A clear candidate whose held-out seeds scatter by `std` below its evidence."""
+    return CandidateFit(
+        effect, {"factor": 1.3}, {"factor": 0.1}, 1, delta, delta, 20.0,
+        0.01, -5.0, 0.01, True, 3.0, 5, heldout_std=std, heldout_lme=delta,
+        heldout_best=delta + 1.0,
+    )  # fmt: skip
+
+
+def test_one_sided_monte_carlo_margin() -> None:
+    """A model beats another when its evidence exceeds the other's best seed by the margin
+    plus z of its own standard errors (a lost-track seed of the other does not help it)."""
+    assert beats(100.0, 3.0, 60.0, margin=10.0, z=3.0, n=3)
+    assert not beats(100.0, 3.0, 95.0, margin=10.0, z=3.0, n=3)
+    assert not beats(100.0, 60.0, 60.0, margin=10.0, z=3.0, n=3)  # its own noise too large
+    hs = HeldScores(0.0, 0.0, 0.0, ())
+    assert hs.lme == 0.0
+
+
+def test_indistinguishable_pair_is_named_together() -> None:
+    win, amb = verdict(
+        [_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 2990.0, 25.0)], CFG, 3
+    )
+    assert win is not None and set(amb) == {"mass_scale", "input_gain"}
+    # mass_scale k and input_gain 1 / k are the same motion: both named whenever both clear
+    win, amb = verdict(
+        [_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 1000.0, 25.0)], CFG, 3
+    )
+    assert win is not None and set(amb) == {"mass_scale", "input_gain"}
+    # distinguishable effects: both only when the evidence cannot separate them
+    win, amb = verdict(
+        [_cand("viscous_damping", 3000.0, 20.0), _cand("support_friction", 2000.0, 25.0)],
+        CFG,
+        3,
+    )
+    assert win is not None and win.effect == "viscous_damping" and amb == ()
+    win, amb = verdict(
+        [_cand("viscous_damping", 3000.0, 20.0), _cand("support_friction", 2980.0, 25.0)],
+        CFG,
+        3,
+    )
+    assert set(amb) == {"viscous_damping", "support_friction"}
+
+
+# ---------------------------------------------------------------------- parts
+def test_filter_setup_of_each_effect() -> None:
+    sc = edge_scenario()
+    s2, exts, bias, delay = Hypothesis.make("friction_scale", {"factor": 1.5}).filter_setup(sc)
+    assert s2.friction.candidates == ((pytest.approx(0.45), pytest.approx(1.35)),)
+    assert exts == () and delay == 0.0
+    _, exts, bias, _ = Hypothesis.make("sensor_bias", {"x": 0.01, "y": -0.02}).filter_setup(sc)
+    np.testing.assert_allclose(bias, [0.01, -0.02, 0.0])
+    _, _, _, delay = Hypothesis.make("sensor_delay", {"seconds": 0.05}).filter_setup(sc)
+    assert delay == 0.05
+    _, exts, _, _ = Hypothesis.make("viscous_damping", {"b": 2.0}).filter_setup(sc)
+    assert [e.effect for e in exts] == ["viscous_damping"]
+
+
+def test_score_is_deterministic_for_a_seed() -> None:
+    tr = edge_sweep_trajectory(3, duration=1.0)
+    run = Run("r", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+    a = Scorer(ScoreConfig(particles=50)).score(Hypothesis(), [run])
+    b = Scorer(ScoreConfig(particles=50)).score(Hypothesis(), [run])
+    assert a.loglik == b.loglik and math.isfinite(a.loglik)
+    assert a.n_obs == run.t.size - ScoreConfig().skip
+    assert 0.0 < a.pred_rmse < 0.05
+
+
+def test_split_runs() -> None:
+    tr = edge_sweep_trajectory(4, duration=1.0)
+    run = Run("r", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+    train, held, desc = split_runs([run], [], 0.4)
+    assert train[0].t.size + held[0].t.size == run.t.size
+    assert held[0].t.size == pytest.approx(0.4 * run.t.size, abs=1)
+    assert "held out" in desc
+    train, held, _ = split_runs([run, run, run], [])
+    assert len(train) == 2 and len(held) == 1
 
 
 def test_smooth_states_recovers_a_quadratic() -> None:
