@@ -694,6 +694,9 @@ class Scenario:
             raise ScenarioError(msg)
         try:
             data = yaml.load(text, Loader=_NoAliasSafeLoader)  # a SafeLoader subclass
+        except RecursionError as err:  # thousands of nested brackets
+            msg = "scenario YAML is nested too deeply to be a scenario"
+            raise ScenarioError(msg) from err
         except yaml.YAMLError as err:
             msg = f"scenario YAML does not parse: {err}"
             raise ScenarioError(msg) from err

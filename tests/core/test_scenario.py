@@ -262,6 +262,7 @@ def test_fuzzed_scenarios_raise_only_scenario_error(
             "aliases are not accepted",
         ),
         ("x: " + "9" * (300 * 1024), "at most"),
+        ("[" * 5000 + "]" * 5000, "nested too deeply"),
         ("!!python/object/apply:os.system ['true']", "does not parse"),
     ],
 )
