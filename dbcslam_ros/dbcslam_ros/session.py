@@ -348,13 +348,14 @@ class FilterSession:
         one); any pose that continues the old time line forgets the candidates.
         """
         chain = self._jump_chain
+        if chain and stamp_ns == chain[-1] and len(chain) >= JUMP_CONFIRMATIONS:
+            return  # confirmed on arrival (`screen_pose`), now processed
         if chain and 0 < stamp_ns - chain[-1] <= self.max_gap_ns:
             chain.append(stamp_ns)
         else:
             chain[:] = [stamp_ns]
         if len(chain) >= JUMP_CONFIRMATIONS:
-            chain.clear()
-            return
+            return  # the chain is forgotten once the jump is taken (`add_pose`)
         self.rejected["stamp_jump"] += 1
         msg = (
             f"pose stamp {stamp_ns * 1e-9:.3f} s jumps from the last pose at "

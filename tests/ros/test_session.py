@@ -389,3 +389,18 @@ def test_pusher_force_reaches_the_real_filter(push_session: FilterSession) -> No
         assert s.force_steps == (39 if use else 0)
         results[use] = out[0].estimate
     assert not np.array_equal(results[False].pose, results[True].pose)
+
+
+def test_jump_confirmed_on_arrival_is_taken_when_processed(fake_filter: Any) -> None:
+    """The live node screens each pose on arrival, then processes it: a jump confirmed by
+    `screen_pose` must not be rejected again by `add_pose` (a looped bag resumes)."""
+    s = _session(reset_after_s=0.5)
+    for k in range(100):
+        s.add_pose(pose(10.0 * k))
+    for t in (0.0, 10.0):
+        with pytest.raises(InputRejected):
+            s.screen_pose(pose(t), s.last_pose_ns)
+    s.screen_pose(pose(20.0), s.last_pose_ns)  # the third pose confirms: queued
+    assert s.add_pose(pose(20.0)) == [] and s.resets == 1
+    s.screen_pose(pose(30.0), s.last_pose_ns)
+    assert len(s.add_pose(pose(30.0))) == 1
