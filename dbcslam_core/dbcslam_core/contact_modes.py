@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core import reduced_kernel
+from dbcslam_core import kernels
 from dbcslam_core.errors import SolverError
 
 __all__ = [
@@ -168,7 +168,7 @@ def solve_reduced(
     impulse_sensitivity: also return d (ln, lt) / d v_free (`ReducedSolution.impulse_response`),
     e.g. to propagate force process noise into a predicted contact force.
 
-    backend: key of REDUCED_BACKENDS: `compiled` (`reduced_kernel`, numba; the default when
+    backend: key of REDUCED_BACKENDS: `compiled` (`kernels`, numba; the default when
     numba imports) or `numpy` (batched array operations; the reference and the fallback).
     None = `DEFAULT_BACKEND`. Both give the same results to round-off.
     """
@@ -310,10 +310,10 @@ def solve_reduced(
 
 
 REDUCED_BACKENDS: dict[str, str] = {
-    "compiled": "one compiled loop over the systems (dbcslam_core.reduced_kernel, numba)",
+    "compiled": "one compiled loop over the systems (dbcslam_core.kernels, numba)",
     "numpy": "batched numpy array operations (reference; no compiler needed)",
 }
-DEFAULT_BACKEND: str = "compiled" if reduced_kernel.AVAILABLE else "numpy"
+DEFAULT_BACKEND: str = "compiled" if kernels.AVAILABLE else "numpy"
 
 
 def _use_compiled(backend: str | None) -> bool:
@@ -321,7 +321,7 @@ def _use_compiled(backend: str | None) -> bool:
     if name not in REDUCED_BACKENDS:
         msg = f"reduced-dynamics backend must be one of {sorted(REDUCED_BACKENDS)}, got {name!r}"
         raise SolverError(msg)
-    if name == "compiled" and not reduced_kernel.AVAILABLE:
+    if name == "compiled" and not kernels.AVAILABLE:
         msg = "reduced-dynamics backend 'compiled' needs numba, which is not installed"
         raise SolverError(msg)
     return name == "compiled"
@@ -367,7 +367,7 @@ def _solve_compiled(
         group = np.arange(n_c, dtype=np.int64)
     else:
         group = np.unique(np.asarray(groups, dtype=np.int64).reshape(-1), return_inverse=True)[1]
-    out, n_bad = reduced_kernel.reduced_dynamics(
+    out, n_bad = kernels.reduced_dynamics(
         gflat(md, (n_c,)),
         gflat(vf, (nv,)),
         jn=gflat(jn_a, (n_c, nv)),

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core import kernels
 from dbcslam_core.errors import ModelError
 
 __all__ = [
@@ -552,14 +553,31 @@ def _proposal_all_observed(
     dt: float,
     obs: LinearObservation,
     s_diag: FloatArray,
+    compiled: bool = kernels.AVAILABLE,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """`gaussian_proposal` (log_pred, innovation, v_mean, v_cov) when every dim is observed,
     in order (the filter's case), entry by entry: the same operations as the general form
-    (same values) on the (...) batch arrays of each matrix entry, no ops on (..., n, n)
-    blocks, whose tiny inner axes make numpy iterate in runs of n elements."""
+    (same values to round-off) either compiled (`kernels.gaussian_update`, one loop over the
+    batch) or on the (...) batch arrays of each matrix entry (no ops on (..., n, n) blocks,
+    whose tiny inner axes make numpy iterate in runs of n elements)."""
     n = vh.shape[-1]
     dt2 = dt * dt
     y = obs.residual(qa + dt * vh)  # (..., n)
+    if compiled:
+        lead = y.shape[:-1]
+        log_pred, v_mean, v_cov = kernels.gaussian_update(
+            np.ascontiguousarray(y.reshape(-1, n)),
+            np.ascontiguousarray(vh.reshape(-1, n)),
+            np.ascontiguousarray(sv.reshape(-1, n, n)),
+            s_diag=s_diag,
+            dt=dt,
+        )
+        return (
+            log_pred.reshape(lead),
+            y,
+            v_mean.reshape(*lead, n),
+            v_cov.reshape(*lead, n, n),
+        )
     # S = dt^2 cov_v + diag(sq^2 + R) = L L^T (lower entries)
     s_ent = [[dt2 * sv[..., i, j] + s_diag[i, j] for j in range(i + 1)] for i in range(n)]
     low = _chol_of(s_ent)

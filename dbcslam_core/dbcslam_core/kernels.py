@@ -1,4 +1,7 @@
-"""Compiled kernel of the reduced (mode-fixed) contact dynamics (`contact_modes.solve_reduced`).
+"""Compiled kernels of the filter's hot path (numba): the reduced contact dynamics and the
+Gaussian (Kalman-form) proposal update.
+
+`reduced_dynamics` is the kernel of `contact_modes.solve_reduced`:
 
 One loop over the lead elements (particle x mode hypothesis x friction hypothesis, flattened)
 that builds and solves each element's r x r system in registers: the same equations as the
@@ -26,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AVAILABLE", "reduced_dynamics"]
+__all__ = ["AVAILABLE", "gaussian_update", "reduced_dynamics"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -326,9 +329,81 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
     return n_bad
 
 
+def _gaussian_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    y: FloatArray,
+    vh: FloatArray,
+    sv: FloatArray,
+    s_diag: FloatArray,
+    dt: float,
+    log_pred: FloatArray,
+    v_mean: FloatArray,
+    v_cov: FloatArray,
+) -> None:
+    """Per element m: S = dt^2 sv + s_diag = L L^T (pivots clipped at 1e-300 as in
+    `observation._chol_of`), Z = L^-1 [y, dt sv^T], log_pred = log N(y; 0, S),
+    v_mean = vh + Z_c^T Z_y, v_cov = sv - Z_c^T Z_c."""
+    n_m, n = y.shape
+    low = np.zeros((n, n))
+    z = np.empty((n, n + 1))
+    log_2pi = np.log(2.0 * np.pi)
+    dt2 = dt * dt
+    for m in range(n_m):
+        for j in range(n):
+            d = dt2 * sv[m, j, j] + s_diag[j, j]
+            for k in range(j):
+                d -= low[j, k] * low[j, k]
+            ljj = np.sqrt(max(d, 1e-300))
+            low[j, j] = ljj
+            for i in range(j + 1, n):
+                num = dt2 * sv[m, i, j] + s_diag[i, j]
+                for k in range(j):
+                    num -= low[i, k] * low[j, k]
+                low[i, j] = num / ljj
+        logdet = 0.0
+        maha = 0.0
+        for i in range(n):
+            z[i, 0] = y[m, i]
+            for v in range(n):
+                z[i, 1 + v] = sv[m, v, i] * dt
+            for col in range(n + 1):
+                s = 0.0
+                for k in range(i):
+                    s += low[i, k] * z[k, col]
+                z[i, col] = (z[i, col] - s) / low[i, i]
+            maha += z[i, 0] * z[i, 0]
+            logdet += np.log(low[i, i])
+        log_pred[m] = -0.5 * (maha + 2.0 * logdet + n * log_2pi)
+        for a in range(n):
+            cx = 0.0
+            for i in range(n):
+                cx += z[i, 1 + a] * z[i, 0]
+            v_mean[m, a] = vh[m, a] + cx
+            for b in range(n):
+                cx = 0.0
+                for i in range(n):
+                    cx += z[i, 1 + a] * z[i, 1 + b]
+                v_cov[m, a, b] = sv[m, a, b] - cx
+
+
 if AVAILABLE:
     _lu_solve_inplace = numba.njit(cache=True, nogil=True)(_lu_solve_inplace)
     _kernel = numba.njit(cache=True, nogil=True)(_kernel)
+    _gaussian_kernel = numba.njit(cache=True, nogil=True)(_gaussian_kernel)
+
+
+def gaussian_update(
+    y: FloatArray, vh: FloatArray, sv: FloatArray, *, s_diag: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Kalman-form update of the velocity v' ~ N(vh, sv) by an observation of every position
+    dim o = q + dt v' + noise (noise covariance s_diag (n, n)): innovation y (M, n),
+    vh (M, n), sv (M, n, n), all contiguous. Returns log p(y) (M,), the posterior mean (M, n)
+    and covariance (M, n, n) of v' (see `observation.gaussian_proposal`)."""
+    n_m, n = y.shape
+    log_pred = np.empty(n_m)
+    v_mean = np.empty((n_m, n))
+    v_cov = np.empty((n_m, n, n))
+    _gaussian_kernel(y, vh, sv, np.ascontiguousarray(s_diag), float(dt), log_pred, v_mean, v_cov)
+    return log_pred, v_mean, v_cov
 
 
 def reduced_dynamics(
