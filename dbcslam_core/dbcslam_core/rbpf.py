@@ -24,6 +24,7 @@ import numpy.typing as npt
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
+    Hypotheses,
     Mode,
     ReducedSolution,
     ViolationScales,
@@ -35,7 +36,7 @@ from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
-from dbcslam_core.geometry import contact_coordinates, contact_kinematics
+from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
 from dbcslam_core.observation import (
     ForceObservation,
     JointSmoother,
@@ -53,6 +54,7 @@ from dbcslam_core.parameters import (
     FrictionMapView,
     predict_parameters,
 )
+from dbcslam_core.particles import MapHistory, ParticleSet
 from dbcslam_core.resampling import (
     RESAMPLERS,
     effective_sample_size,
@@ -320,6 +322,86 @@ def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
     return np.asarray(np.squeeze(out, axis=axis), dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class _StepInputs:
+    """Inputs of one step: the observation and its linearisation, the force reading and its
+    obstacle, the wrench u (nq,), smoothed joints at the end of the step and the obstacle
+    positions / velocities during the step (env0, env_vel)."""
+
+    observation: PoseObservation | None
+    lin: LinearObservation | None
+    force: ForceObservation | None
+    force_obstacle: int | None
+    u: FloatArray
+    joints: FloatArray
+    env0: FloatArray
+    env_vel: FloatArray
+
+
+@dataclass(frozen=True)
+class _FreeMotion:
+    """Kinematics at the particles and the motion without contact impulses: v_free (P, nv);
+    with support friction v_free_b (P, B, nv) and the effective mass m_eff (P, B, nv, nv);
+    free gap rates an and slips at (P, C)."""
+
+    kin: ContactKinematics
+    v_free: FloatArray
+    v_free_b: FloatArray | None
+    m_eff: FloatArray | None
+    an: FloatArray
+    at: FloatArray
+
+
+@dataclass(frozen=True)
+class _Entries:
+    """The N live (particle, joint hypothesis) entries: hyp (padded (P, K) layout), n_k = K,
+    pi / ki (N,) their particle and hypothesis, slot (P, K) entry index or -1, modes_n (N, C),
+    pbcm (N, B, C) flat index of pred[p, b, c, mode], lp (N, B) log prior."""
+
+    hyp: Hypotheses
+    n_k: int
+    pi: IntArray
+    ki: IntArray
+    slot: IntArray
+    modes_n: IntArray
+    pbcm: IntArray
+    lp: FloatArray
+
+
+@dataclass(frozen=True)
+class _Dynamics:
+    """Per entry x friction hypothesis: post-step velocity v_h (N, B, nv), discrete proposal
+    weight log_alpha (N, B) and velocity noise covariance cov_h (N, B, nv, nv)."""
+
+    v_h: FloatArray
+    log_alpha: FloatArray
+    cov_h: FloatArray
+
+
+@dataclass(frozen=True)
+class _Proposal:
+    """Per particle: evidence incr (P,) = log sum over (h, b) of proposal weight x predictive
+    likelihood, and the sampled state v_new, q_new (P, nq)."""
+
+    incr: FloatArray
+    v_new: FloatArray
+    q_new: FloatArray
+
+
+@dataclass
+class _Posterior:
+    """Closed-form discrete posterior per particle: fric_post (P, B), fric_pair (P, pairs,
+    Kmax) per-pair marginals, modes_post (P, B, C, 4) given b, marg_post (P, C, 4), pair_in
+    (P, pairs) P(pair in contact), p_contact (P, C)."""
+
+    fric_post: FloatArray
+    fric_pair: FloatArray
+    modes_post: FloatArray
+    marg_post: FloatArray
+    pair_in: FloatArray
+    p_contact: FloatArray
+
+
 class DbcSlamFilter:
     """Online DBC-SLAM filter: `step(observation, inputs) -> Estimate`.
 
@@ -440,24 +522,57 @@ class DbcSlamFilter:
             cfg.joint_accel_std,
             maneuver_accel_std=cfg.joint_maneuver_accel_std,
         )
-        self.q = np.zeros((cfg.particles, self.nq))
-        self.v = np.zeros((cfg.particles, self.nq))
-        self.log_w = np.zeros(cfg.particles)
-        self.fric = np.tile(self._prior_b, (cfg.particles, 1))
-        self.modes = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
-        self.modes[..., Mode.SEPARATED] = 1.0
-        # fixed-lag history for the friction map: ring buffer (map_lag + 1, P, W) of packed
-        # per-particle rows [fric_pair (pairs * Kmax) | s (C) | P(in contact) (C)], the oldest
-        # of the _hist_len entries at slot _hist_head
-        self._hist_width = self.n_pairs * self._k_max + 2 * self.n_c
-        self._hist_buf = np.zeros((cfg.map_lag + 1, cfg.particles, self._hist_width))
-        self._hist_head = 0
-        self._hist_len = 0
+        modes0 = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
+        modes0[..., Mode.SEPARATED] = 1.0
+        self.particles = ParticleSet(
+            q=np.zeros((cfg.particles, self.nq)),
+            v=np.zeros((cfg.particles, self.nq)),
+            log_w=np.zeros(cfg.particles),
+            fric=np.tile(self._prior_b, (cfg.particles, 1)),
+            modes=modes0,
+            history=MapHistory(
+                cfg.map_lag, cfg.particles, self.n_pairs * self._k_max + 2 * self.n_c
+            ),
+        )
         # contacts of each friction pair (None: all contacts belong to the pair)
         self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
             None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
             for pr in range(self.n_pairs)
         ]
+
+    # ------------------------------------------------------------- particle arrays
+    @property
+    def q(self) -> FloatArray:
+        """Particle poses (P, nq) (m, m[, rad]), world frame."""
+        return self.particles.q
+
+    @q.setter
+    def q(self, value: FloatArray) -> None:
+        self.particles.q = value
+
+    @property
+    def v(self) -> FloatArray:
+        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame."""
+        return self.particles.v
+
+    @v.setter
+    def v(self, value: FloatArray) -> None:
+        self.particles.v = value
+
+    @property
+    def log_w(self) -> FloatArray:
+        """Unnormalised log weights (P,)."""
+        return self.particles.log_w
+
+    @property
+    def fric(self) -> FloatArray:
+        """Friction belief over the joint friction hypotheses (P, B)."""
+        return self.particles.fric
+
+    @property
+    def modes(self) -> FloatArray:
+        """Per-contact mode marginals given the friction hypothesis (P, B, C, 4)."""
+        return self.particles.modes
 
     # ------------------------------------------------------------------ initialisation
     def initialize(
@@ -482,22 +597,22 @@ class DbcSlamFilter:
             if v_std is None
             else np.broadcast_to(np.asarray(v_std, dtype=np.float64), (self.nq,))
         )
-        self.q = qm + qs * self.rng.standard_normal((p, self.nq))
-        self.v = vm + vs * self.rng.standard_normal((p, self.nq))
+        q = qm + qs * self.rng.standard_normal((p, self.nq))
+        v = vm + vs * self.rng.standard_normal((p, self.nq))
         if self.nq == 3:
-            self.q[:, 2] = wrap_angle(self.q[:, 2])
-        self.log_w = np.zeros(p)
-        self.fric = np.tile(self._prior_b, (p, 1))
+            q[:, 2] = wrap_angle(q[:, 2])
         if joints is not None:
             self._joints_prev = self._joint_filter.reset(joints)
         env = self._joints_prev if self._joints_prev is not None else None
-        kin = contact_kinematics(self.scenario, self.q, env, None)
-        an = np.einsum("pcv,pv->pc", kin.Jn, self.v) - kin.vn_env
-        at = np.einsum("pcv,pv->pc", kin.Jt, self.v) - kin.vt_env
+        kin = contact_kinematics(self.scenario, q, env, None)
+        an = np.einsum("pcv,pv->pc", kin.Jn, v) - kin.vn_env
+        at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
-        self.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
-        self._hist_head = 0
-        self._hist_len = 0
+        ps = self.particles
+        ps.q, ps.v, ps.log_w = q, v, np.zeros(p)
+        ps.fric = np.tile(self._prior_b, (p, 1))
+        ps.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
+        ps.history.clear()
         self._initialised = True
 
     def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
@@ -533,7 +648,46 @@ class DbcSlamFilter:
         force equivalent of the process noise is folded into `FilterConfig.force_noise`), so
         it is a factor of the discrete hypothesis weights: it multiplies into the proposal
         weights of (h, b), the particle weight, and the closed-form mode/friction posterior.
+
+        The phases (DESIGN.md, "Estimator"): read the inputs, free motion, mode prediction
+        (softened NCP transition), live joint hypotheses, their reduced dynamics, the optimal
+        proposal and the sampled state, the closed-form discrete posterior, eq. (7), weights
+        and resampling, and the estimate.
         """
+        inp = self._read_inputs(observation, inputs, force)
+        free = self._free_motion(inp)
+        pred = self._predict_modes(free)
+        ent = self._live_entries(pred, free)
+        dyn = self._hypothesis_dynamics(ent, free, inp)
+        prop = self._propose(ent, dyn, inp)
+        post = self._discrete_posterior(ent, dyn, prop)
+        self._update_beliefs(post)
+        log_ml = self._reweight(prop.incr, inp)
+        w = self._move(prop, post, inp.joints)
+        ess, resampled = self._maybe_resample(w)
+        map_w = normalise_log_weights(self.particles.log_w)[0] if resampled else w
+        return self._estimate(
+            w=w,  # the pre-resampling weights (lower variance)
+            map_w=map_w,  # the map snapshot: the (resampled) particles' weights
+            q=prop.q_new,
+            v=prop.v_new,
+            marg_post=post.marg_post,
+            fric_pair=post.fric_pair,
+            ess=ess,
+            live=float(ent.hyp.n_live.mean()),
+            log_ml=log_ml,
+            resampled=resampled,
+        )
+
+    # -------------------------------------------------------------------- step phases
+    def _read_inputs(
+        self,
+        observation: PoseObservation | None,
+        inputs: FilterInput,
+        force: ForceObservation | None,
+    ) -> _StepInputs:
+        """Validate the inputs, linearise the observation, advance the joint smoother and
+        initialise the particles from the first observation if needed."""
         cfg = self.config
         lin = None if observation is None else self._obs_model.linearize(observation)
         force_obst = None if force is None else self._force_obstacle(force)
@@ -570,63 +724,70 @@ class DbcSlamFilter:
             env_vel = (joints - env0) / self.dt
         self._joints_prev = joints
         self._step += 1
-        dt = self.dt
-        n_p = cfg.particles
+        return _StepInputs(observation, lin, force, force_obst, u, joints, env0, env_vel)
 
-        # 1. kinematics and free motion
-        kin = contact_kinematics(self.scenario, self.q, env0, env_vel)
+    def _free_motion(self, inp: _StepInputs) -> _FreeMotion:
+        """Contact kinematics at the particles and the velocity without contact impulses
+        (with the implicit support friction per friction hypothesis when the body rests on
+        a surface: v_free (P, B, nv) and the effective mass (P, B, nv, nv))."""
+        cfg = self.config
+        dt = self.dt
+        ps = self.particles
+        kin = contact_kinematics(self.scenario, ps.q, inp.env0, inp.env_vel)
         m_eff: FloatArray | None = None
         v_free_b: FloatArray | None = None
         if self._mu_surface is None:
-            f = self.model.generalized_force(self.q, self.v, u)
-            v_free = self.v + dt * f * self._inv_mass
+            f = self.model.generalized_force(ps.q, ps.v, inp.u)
+            v_free = ps.v + dt * f * self._inv_mass
         else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(
-                self.q, self.v, 1.0, velocity_eps=cfg.support_velocity_eps
-            )
+            k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
             m_eff = (
                 self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
             )
-            v_free_b = self.model.free_velocity(self.q[:, None], self.v[:, None], u, m_eff)
-            v_free = np.einsum("pb,pbv->pv", self.fric, v_free_b)  # transition only
+            v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
+            v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
-        # 2. transition (softened NCP + persistence)
-        soft = soft_modes(kin.phi, an, at, dt, cfg.transition)
+        return _FreeMotion(kin, v_free, v_free_b, m_eff, an, at)
+
+    def _predict_modes(self, free: _FreeMotion) -> FloatArray:
+        """Predicted per-contact mode marginals (P, B, C, 4): softened NCP checks of the free
+        motion, edge consistency of adjacent vertices, persistence (`transition`)."""
+        cfg = self.config
+        ps = self.particles
+        kin = free.kin
+        soft = soft_modes(kin.phi, free.an, free.at, self.dt, cfg.transition)
         if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
-            prev_in = 1.0 - np.einsum("pb,pbc->pc", self.fric, self.modes[..., Mode.SEPARATED])
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
             partner = np.zeros_like(prev_in)
             for c, d in self._edge_partners:
                 partner[:, c] = np.maximum(partner[:, c], prev_in[:, d])
             soft = edge_consistency(
-                soft, kin.phi, an, dt, partner_contact=partner, params=cfg.transition
+                soft, kin.phi, free.an, self.dt, partner_contact=partner, params=cfg.transition
             )
-        pred = mode_transition(
-            self.modes,
+        return mode_transition(
+            ps.modes,
             soft[:, None],
             cfg.transition,
             phi=kin.phi[:, None],
-            gap_rate_free=an[:, None],
-            dt=dt,
-        )  # (P, B, C, 4)
-        marg = np.einsum("pb,pbcm->pcm", self.fric, pred)
-        # 3. joint hypotheses
-        hyp = enumerate_hypotheses(
-            marg,
-            cfg.prune_threshold,
-            cfg.max_hypotheses,
-            layout=self._layout,
-            phi=kin.phi,
+            gap_rate_free=free.an[:, None],
+            dt=self.dt,
         )
-        modes_k = hyp.modes  # (P, K, C)
-        n_k = modes_k.shape[1]
-        # 4. reduced dynamics for all live (particle, hypothesis) pairs x friction: the padded
-        # (P, K) layout is compacted to the N live entries first.
+
+    def _live_entries(self, pred: FloatArray, free: _FreeMotion) -> _Entries:
+        """Joint mode hypotheses per particle, compacted from the padded (P, K) layout to the
+        N live entries, with their log prior per friction hypothesis (N, B)."""
+        cfg = self.config
+        n_p = self.particles.size
+        marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
+        hyp = enumerate_hypotheses(
+            marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
+        )
+        n_k = hyp.modes.shape[1]
         pi, ki = np.nonzero(hyp.valid)
-        n_live = pi.size
         slot = np.full((n_p, n_k), -1, dtype=np.int64)
-        slot[pi, ki] = np.arange(n_live)
-        modes_n = modes_k[pi, ki]  # (N, C)
+        slot[pi, ki] = np.arange(pi.size)
+        modes_n = hyp.modes[pi, ki]  # (N, C)
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
         pred_full = pred
@@ -634,77 +795,109 @@ class DbcSlamFilter:
             pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
             lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
+        return _Entries(hyp, n_k, pi, ki, slot, modes_n, pbcm, lp)
+
+    def _hypothesis_dynamics(
+        self, ent: _Entries, free: _FreeMotion, inp: _StepInputs
+    ) -> _Dynamics:
+        """Reduced dynamics of every live entry x friction hypothesis, the discrete proposal
+        weights log alpha (N, B) (friction belief x mode prior x NCP consistency, times the
+        force likelihood) and the velocity noise covariance of each (N, B, nv, nv)."""
+        cfg = self.config
+        n_p = self.particles.size
         sol = self._solve_entries(
-            modes_n,
-            v_free.take(pi, axis=0) if v_free_b is None else v_free_b.take(pi, axis=0),
-            kin,
-            pi,
-            None if m_eff is None else m_eff.take(pi, axis=0),
-            sensitivity=force is not None,
+            ent.modes_n,
+            free.v_free.take(ent.pi, axis=0)
+            if free.v_free_b is None
+            else free.v_free_b.take(ent.pi, axis=0),
+            free.kin,
+            ent.pi,
+            None if free.m_eff is None else free.m_eff.take(ent.pi, axis=0),
+            sensitivity=inp.force is not None,
         )
-        v_h = sol.v_next  # (N, B, nv)
-        l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
-        l_cond_full[pi, ki] = lp - 0.5 * sol.score
-        l_cond_full = l_cond_full - self._lse(l_cond_full, 1)[:, None, :]
+        l_cond = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        l_cond[ent.pi, ent.ki] = ent.lp - 0.5 * sol.score
+        l_cond = l_cond - self._lse(l_cond, 1)[:, None, :]
         with np.errstate(divide="ignore"):
-            log_alpha_full = np.log(self.fric)[:, None, :] + l_cond_full  # (P, K, B)
-        log_alpha = log_alpha_full[pi, ki]  # (N, B)
-        # 5. optimal proposal. Process noise is force noise: a perturbation e of the free
-        # velocity reaches v' through the response map of the hypothesis (constrained
-        # directions are absorbed by the contact impulses), plus a small isotropic part.
+            log_alpha_full = np.log(self.particles.fric)[:, None, :] + l_cond  # (P, K, B)
+        log_alpha = log_alpha_full[ent.pi, ent.ki]  # (N, B)
+        # Process noise is force noise: a perturbation e of the free velocity reaches v'
+        # through the response map of the hypothesis (constrained directions are absorbed by
+        # the contact impulses), plus a small isotropic part.
         boost = 1.0
         if cfg.warmup_steps > 0:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         sig2 = (self._sigma_v * boost) ** 2
-        if force is not None and force_obst is not None:
+        if inp.force is not None and inp.force_obstacle is not None:
             log_alpha = log_alpha + self._force_log_likelihood(
-                force, force_obst, sol, kin.normal[pi], sig2
+                inp.force, inp.force_obstacle, sol, free.kin.normal[ent.pi], sig2
             )
         resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
+        return _Dynamics(sol.v_next, log_alpha, cov_h)
+
+    def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
+        """Optimal proposal: per entry x friction the Gaussian posterior of v' given the
+        observation; one (hypothesis, friction) drawn per particle in proportion to its
+        weight (Gumbel-max), then v' and the position noise from its Gaussian."""
+        dt = self.dt
+        n_p = self.particles.size
         prop = gaussian_proposal(
-            self.q.take(pi, axis=0)[:, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
+            self.particles.q.take(ent.pi, axis=0)[:, None, :],
+            dyn.v_h,
+            dyn.cov_h,
+            dt,
+            inp.lin,
+            sigma_q=self._sigma_q,
         )
-        log_joint = np.full((n_p, n_k, self.n_b), -np.inf)
-        log_joint[pi, ki] = log_alpha + prop.log_pred
-        incr = self._lse(log_joint.reshape(n_p, -1), 1)  # (P,)
+        log_joint = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        log_joint[ent.pi, ent.ki] = dyn.log_alpha + prop.log_pred
         flat = log_joint.reshape(n_p, -1)
+        incr = self._lse(flat, 1)  # (P,)
         gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
-        k_star, b_star = np.unravel_index(pick, (n_k, self.n_b))
-        rows = np.arange(n_p)
-        n_star = slot[rows, k_star]
+        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_b))
+        n_star = ent.slot[np.arange(n_p), k_star]
         v_new, e_q = sample_gaussian_proposal(
             prop,
-            v_h=v_h[n_star, b_star],
+            v_h=dyn.v_h[n_star, b_star],
             innovation=prop.innovation[n_star, b_star],
             v_mean=prop.v_mean[n_star, b_star],
             v_cov=prop.v_cov[n_star, b_star],
             dt=dt,
             rng=self.rng,
         )
-        q_new = self.q + dt * v_new + e_q
+        q_new = self.particles.q + dt * v_new + e_q
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
-        # 6. closed-form discrete posterior given the sampled continuous state
-        log_post = np.full((n_p, n_k, self.n_b), -np.inf)
-        dens = gaussian_log_density(v_new.take(pi, axis=0)[:, None, :] - v_h, cov_h)
-        log_post[pi, ki] = np.where(np.isfinite(log_alpha), log_alpha + dens, -np.inf)
+        return _Proposal(incr, v_new, q_new)
+
+    def _discrete_posterior(self, ent: _Entries, dyn: _Dynamics, prop: _Proposal) -> _Posterior:
+        """Closed-form posterior of the discrete state given the sampled continuous state:
+        joint over (hypothesis, friction), then the friction belief (P, B), the per-contact
+        mode marginals given b (P, B, C, 4) and overall (P, C, 4), and P(pair in contact)."""
+        n_p = self.particles.size
+        log_post = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        v_rel = prop.v_new.take(ent.pi, axis=0)[:, None, :] - dyn.v_h
+        dens = gaussian_log_density(v_rel, dyn.cov_h)
+        log_post[ent.pi, ent.ki] = np.where(
+            np.isfinite(dyn.log_alpha), dyn.log_alpha + dens, -np.inf
+        )
         log_post = log_post - self._lse(log_post.reshape(n_p, -1), 1)[:, None, None]
         post = np.exp(log_post)  # (P, K, B)
         fric_post = post.sum(axis=1)  # (P, B)
         # num[p, b, c, m] = sum_k post[p, k, b] [mode_c of (p, k) == m], over the live entries
-        # (flat index of (p, b, c, mode) as for lp above)
-        post_n = post[pi, ki]  # (N, B)
+        # (flat index of (p, b, c, mode) as for the log prior)
+        post_n = post[ent.pi, ent.ki]  # (N, B)
         num = np.bincount(
-            pbcm.reshape(-1),
+            ent.pbcm.reshape(-1),
             weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
         ).reshape(n_p, self.n_b, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
         tiny = 1e-12
         modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
-        in_c = modes_n != Mode.SEPARATED  # (N, C)
+        in_c = ent.modes_n != Mode.SEPARATED  # (N, C)
         p_n = post_n.sum(axis=1)  # (N,) posterior of each live entry
         pair_in = np.zeros((n_p, self.n_pairs))  # (P, pairs): P(pair in contact)
         for pr, mask in enumerate(self._pair_contacts):
@@ -714,69 +907,71 @@ class DbcSlamFilter:
                 w_in = p_n * in_c[:, mask].any(axis=1)
             else:
                 continue
-            pair_in[:, pr] = np.bincount(pi, weights=w_in, minlength=n_p)
+            pair_in[:, pr] = np.bincount(ent.pi, weights=w_in, minlength=n_p)
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
         fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
-        # 7. eq. (7): predictive friction belief for the next step
-        if self._step <= cfg.friction_hold_steps:
+        return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
+
+    def _update_beliefs(self, post: _Posterior) -> None:
+        """Eq. (7): the predictive friction belief of the next step (held at the prior
+        during `friction_hold_steps`) and the mode marginals given b."""
+        ps = self.particles
+        if self._step <= self.config.friction_hold_steps:
             # warm-up: wrong initial velocities are still being weeded out, and collisions
             # of those particles would bias the friction belief -> hold it at the prior.
-            self.fric = np.tile(self._prior_b, (n_p, 1))
-            fric_pair = self._pair_marginals(self.fric)
+            ps.fric = np.tile(self._prior_b, (ps.size, 1))
+            post.fric_pair = self._pair_marginals(ps.fric)
         else:
-            self.fric = self._predict_friction(fric_post, fric_pair, pair_in)
-        self.modes = modes_post
-        # 8. weights, marginal likelihood, map history, resampling
-        w_prev, _ = normalise_log_weights(self.log_w)
+            ps.fric = self._predict_friction(post.fric_post, post.fric_pair, post.pair_in)
+        ps.modes = post.modes_post
+
+    def _reweight(self, incr: FloatArray, inp: _StepInputs) -> float:
+        """Multiply the weights by each particle's evidence; returns the step's log marginal
+        likelihood log p(o_l | o_{0:l-1}) (0 without observation)."""
+        ps = self.particles
+        w_prev, _ = normalise_log_weights(ps.log_w)
         with np.errstate(divide="ignore"):
             log_ml = (
                 float(_logsumexp(np.log(w_prev) + incr, axis=0))
-                if lin is not None or force is not None
+                if inp.lin is not None or inp.force is not None
                 else 0.0
             )
-        self.log_w = self.log_w + incr
-        if not np.any(np.isfinite(self.log_w)):
+        ps.log_w = ps.log_w + incr
+        if not np.any(np.isfinite(ps.log_w)):
             msg = (
-                f"all {n_p} particles have zero likelihood at step {self._step}: the observation "
-                f"{observation} is incompatible with the model"
+                f"all {ps.size} particles have zero likelihood at step {self._step}: the "
+                f"observation {inp.observation} is incompatible with the model"
             )
             raise ModelError(msg)
-        self.q, self.v = q_new, v_new
-        w, _ = normalise_log_weights(self.log_w)
-        # contact coordinate s at the end of the step for the map
-        s_new = contact_coordinates(self.scenario, self.q, joints)
-        old = self._hist_push(fric_pair, s_new, p_contact)
+        return log_ml
+
+    def _move(self, prop: _Proposal, post: _Posterior, joints: FloatArray) -> FloatArray:
+        """Take the sampled state and append the step to the friction-map history (the entry
+        leaving the lag window is committed); returns the normalised weights (P,)."""
+        ps = self.particles
+        ps.q, ps.v = prop.q_new, prop.v_new
+        w, _ = normalise_log_weights(ps.log_w)
+        s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
+        pk = self.n_pairs * self._k_max
+        row = np.empty((ps.size, ps.history.buf.shape[2]))
+        row[:, :pk] = post.fric_pair.reshape(ps.size, pk)
+        row[:, pk : pk + self.n_c] = s_new
+        row[:, pk + self.n_c :] = post.p_contact
+        old = ps.history.push(row)
         if old is not None:
             self._commit(self.map, old[None], w)
+        return w
+
+    def _maybe_resample(self, w: FloatArray) -> tuple[float, bool]:
+        """Resample when the effective sample size falls below the threshold; returns
+        (ESS before resampling, whether the set was resampled)."""
         ess = effective_sample_size(w)
-        estimate_w = w
-        resampled = False
-        if ess < cfg.ess_threshold * n_p:
-            idx = self._resampler(w, self.rng)
-            self.q = self.q[idx]
-            self.v = self.v[idx]
-            self.fric = self.fric[idx]
-            self.modes = self.modes[idx]
-            self._hist_buf = self._hist_buf.take(idx, axis=1)
-            self.log_w = np.zeros(n_p)
-            resampled = True
-            # estimate with the pre-resampling weights (lower variance)
-        # the map snapshot uses the weights of the (resampled) particles, as friction_map()
-        map_w = normalise_log_weights(self.log_w)[0] if resampled else w
-        return self._estimate(
-            w=estimate_w,
-            map_w=map_w,
-            q=q_new,
-            v=v_new,
-            marg_post=marg_post,
-            fric_pair=fric_pair,
-            ess=ess,
-            live=float(hyp.n_live.mean()),
-            log_ml=log_ml,
-            resampled=resampled,
-        )
+        if ess >= self.config.ess_threshold * self.particles.size:
+            return ess, False
+        self.particles.resample(self._resampler(w, self.rng))
+        return ess, True
 
     # ------------------------------------------------------------------------ helpers
     @staticmethod
@@ -926,33 +1121,6 @@ class DbcSlamFilter:
         joint = joint / sum_last(joint)[:, None]
         return np.asarray(joint, dtype=np.float64)
 
-    def _hist_push(
-        self, fric_pair: FloatArray, s: FloatArray, p_contact: FloatArray
-    ) -> FloatArray | None:
-        """Append one step to the map history; returns the entry (P, W) that leaves the lag
-        window (a view, valid until the next push) or None."""
-        cap = self._hist_buf.shape[0]
-        row = self._hist_buf[(self._hist_head + self._hist_len) % cap]
-        pk = self.n_pairs * self._k_max
-        row[:, :pk] = fric_pair.reshape(fric_pair.shape[0], pk)
-        row[:, pk : pk + self.n_c] = s
-        row[:, pk + self.n_c :] = p_contact
-        self._hist_len += 1
-        if self._hist_len <= self.config.map_lag:
-            return None
-        old: FloatArray = self._hist_buf[self._hist_head]
-        self._hist_head = (self._hist_head + 1) % cap
-        self._hist_len -= 1
-        return old
-
-    def _hist_entries(self) -> FloatArray:
-        """The uncommitted history (L, P, W), oldest first."""
-        cap = self._hist_buf.shape[0]
-        if self._hist_head + self._hist_len <= cap:
-            return self._hist_buf[self._hist_head : self._hist_head + self._hist_len]
-        order = (self._hist_head + np.arange(self._hist_len)) % cap
-        return self._hist_buf.take(order, axis=0)
-
     def _map_observations(
         self, entries: FloatArray, w: FloatArray
     ) -> list[tuple[FloatArray, FloatArray, FloatArray] | None]:
@@ -988,14 +1156,15 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
-        w, _ = normalise_log_weights(self.log_w)
+        w, _ = normalise_log_weights(self.particles.log_w)
         return self._friction_map_view(w)
 
     def _friction_map_view(self, w: FloatArray) -> FrictionMapView:
         """`friction_map` with the normalised weights w of self.log_w given."""
-        if self._hist_len == 0:
+        history = self.particles.history
+        if history.length == 0:
             return self.map.view()
-        obs = self._map_observations(self._hist_entries(), w)
+        obs = self._map_observations(history.entries(), w)
         pending = [None if o is None else self.map.accumulate(*o) for o in obs]
         return self.map.view(pending)
 
