@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -645,11 +646,15 @@ def sample_gaussian_proposal(
     v_cov: npt.ArrayLike,
     dt: float,
     rng: np.random.Generator,
+    draw: Callable[[tuple[int, ...]], FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Draw (v', e_q) (N, nq) for the chosen hypotheses (rows of prop's arrays).
 
     v' ~ N(v_mean, v_cov) via a jittered Cholesky factor; then e_q | v' on observed dims.
+    draw(shape): the standard normals (default rng.standard_normal; e.g. shared by rows
+    that must see the same noise).
     """
+    normals = rng.standard_normal if draw is None else draw
     vm = np.asarray(v_mean, dtype=np.float64)
     cov = np.asarray(v_cov, dtype=np.float64)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -661,7 +666,7 @@ def sample_gaussian_proposal(
     ar = np.arange(n)
     cov[..., ar, ar] += 1e-12 * np.maximum(scale, 1e-300)[..., None]  # jitter on the diagonal
     low = _chol_entries(cov)
-    z = rng.standard_normal(vm.shape)
+    z = normals(vm.shape)
     corr = np.stack(
         [
             sum((low[i][k] * z[..., k] for k in range(1, i + 1)), low[i][0] * z[..., 0])
@@ -673,7 +678,7 @@ def sample_gaussian_proposal(
     y = np.asarray(innovation, dtype=np.float64)
     r = y - dt * (v_new - np.asarray(v_h, dtype=np.float64))
     q_mean = np.where(prop.observed, prop.q_gain * r, 0.0)
-    e_q = q_mean + prop.q_std * rng.standard_normal(vm.shape)
+    e_q = q_mean + prop.q_std * normals(vm.shape)
     return np.asarray(v_new, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
 
 

@@ -15,6 +15,7 @@ centre of mass; twists (vx, vy[, omega]) in the world frame.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -135,6 +136,18 @@ class FilterConfig:
       `normal` (the component along the contact normal: measured better on synthetic and
       pybullet pushes, the tangential part is the most model-sensitive and biased stick/slide
       towards sliding with the lowest pusher friction) or `both`.
+    * friction_bank: every particle carries one copy of the continuous state (and of the mode
+      marginals) per joint friction hypothesis b, driven by the same random numbers (a bank
+      of B fixed-friction sub-filters per particle). The friction belief of a particle is
+      then updated by the predictive likelihood of its b-copies, p(b | o) proportional to
+      p(b) prod_l p(o_l | o_{<l}, b, copy b), instead of being conditioned on one sampled
+      velocity: without the bank, an impact's sampled velocity fits one b only, each
+      particle's closed-form belief turns one-hot there and resampling on pose spreads a
+      label (at 40 particles the gripper ended on a wrong coefficient in 4 of 5 seeds).
+      Resampling moves whole banks. Requires the time-invariant `reuse` parameter model
+      (the copies would need IMM-style mixing for a coefficient that changes between
+      steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
+      the reduced solves and proposals are as many as without the bank.
     """
 
     particles: int = 500
@@ -169,6 +182,7 @@ class FilterConfig:
     joint_maneuver_accel_std: float | None = None
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
+    friction_bank: bool = False
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -216,6 +230,12 @@ class FilterConfig:
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
             raise ModelError(msg)
+        if self.friction_bank and self.parameter_model != "reuse":
+            msg = (
+                "friction_bank needs the time-invariant parameter_model 'reuse' (a coefficient "
+                f"that changes between steps would need IMM mixing), got {self.parameter_model!r}"
+            )
+            raise ModelError(msg)
 
     @classmethod
     def preset(cls, kind: str, **overrides: Any) -> FilterConfig:
@@ -245,6 +265,7 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
+                "friction_bank": True,
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -483,10 +504,20 @@ class DbcSlamFilter:
         self._mu = np.stack(
             [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
         )  # (B, C)
+        # friction bank: n_sub copies of each particle, one per friction hypothesis, whose
+        # arrays carry a friction axis of length n_fb = 1 (sub-particle j = i * n_sub + b has
+        # hypothesis _sub_b[j]); without the bank n_sub = 1 and the arrays carry all B
+        self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
+        self._n_sub = self.n_b if self._bank else 1
+        self.n_fb = 1 if self._bank else self.n_b
+        n_sub_particles = cfg.particles * self._n_sub
+        self._sub_b: IntArray | None = (
+            np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
+        )
         # flat index of pred[p, b, c, m] (P, B, C, 4): p * stride + offset[b, c] + m
-        self._pred_stride = self.n_b * self.n_c * N_MODES
+        self._pred_stride = self.n_fb * self.n_c * N_MODES
         self._pred_offset = (
-            np.arange(self.n_b)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
+            np.arange(self.n_fb)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
         ) * N_MODES
         # support friction (push): coefficient per friction hypothesis b, or None
         sp = self.model.surface_pair
@@ -505,6 +536,7 @@ class DbcSlamFilter:
             for p in range(self.n_pairs):
                 pri = pri * self._prior_pair[p][beta[:, p]]
             self._prior_b = pri / pri.sum()
+        self._prior_fb = np.ones(1) if self._bank else self._prior_b  # arrays' friction axis
         self._scales = ViolationScales(
             impulse=cfg.violation_impulse,
             velocity=cfg.violation_velocity,
@@ -522,17 +554,19 @@ class DbcSlamFilter:
             cfg.joint_accel_std,
             maneuver_accel_std=cfg.joint_maneuver_accel_std,
         )
-        modes0 = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
+        modes0 = np.zeros((n_sub_particles, self.n_fb, self.n_c, N_MODES))
         modes0[..., Mode.SEPARATED] = 1.0
         self.particles = ParticleSet(
-            q=np.zeros((cfg.particles, self.nq)),
-            v=np.zeros((cfg.particles, self.nq)),
+            q=np.zeros((n_sub_particles, self.nq)),
+            v=np.zeros((n_sub_particles, self.nq)),
             log_w=np.zeros(cfg.particles),
-            fric=np.tile(self._prior_b, (cfg.particles, 1)),
+            fric=np.tile(self._prior_fb, (n_sub_particles, 1)),
             modes=modes0,
             history=MapHistory(
                 cfg.map_lag, cfg.particles, self.n_pairs * self._k_max + 2 * self.n_c
             ),
+            bank=np.tile(self._prior_b, (cfg.particles, 1)) if self._bank else None,
+            copies=self._n_sub,
         )
         # contacts of each friction pair (None: all contacts belong to the pair)
         self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
@@ -601,6 +635,9 @@ class DbcSlamFilter:
         v = vm + vs * self.rng.standard_normal((p, self.nq))
         if self.nq == 3:
             q[:, 2] = wrap_angle(q[:, 2])
+        if self._n_sub > 1:  # the bank's copies start from their particle's state
+            q = np.repeat(q, self._n_sub, axis=0)
+            v = np.repeat(v, self._n_sub, axis=0)
         if joints is not None:
             self._joints_prev = self._joint_filter.reset(joints)
         env = self._joints_prev if self._joints_prev is not None else None
@@ -609,9 +646,14 @@ class DbcSlamFilter:
         at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
         ps = self.particles
+        n_sub_particles = q.shape[0]
         ps.q, ps.v, ps.log_w = q, v, np.zeros(p)
-        ps.fric = np.tile(self._prior_b, (p, 1))
-        ps.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
+        ps.fric = np.tile(self._prior_fb, (n_sub_particles, 1))
+        ps.modes = np.broadcast_to(
+            soft[:, None], (n_sub_particles, self.n_fb, self.n_c, N_MODES)
+        ).copy()
+        if ps.bank is not None:
+            ps.bank = np.tile(self._prior_b, (p, 1))
         ps.history.clear()
         self._initialised = True
 
@@ -661,13 +703,16 @@ class DbcSlamFilter:
         dyn = self._hypothesis_dynamics(ent, free, inp)
         prop = self._propose(ent, dyn, inp)
         post = self._discrete_posterior(ent, dyn, prop)
+        incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
         self._update_beliefs(post)
-        log_ml = self._reweight(prop.incr, inp)
+        log_ml = self._reweight(incr, inp)
         w = self._move(prop, post, inp.joints)
+        row_w = self._row_weights(w)
         ess, resampled = self._maybe_resample(w)
         map_w = normalise_log_weights(self.particles.log_w)[0] if resampled else w
         return self._estimate(
             w=w,  # the pre-resampling weights (lower variance)
+            row_w=row_w,  # the same per row of the state arrays (bank copies)
             map_w=map_w,  # the map snapshot: the (resampled) particles' weights
             q=prop.q_new,
             v=prop.v_new,
@@ -741,9 +786,12 @@ class DbcSlamFilter:
             v_free = ps.v + dt * f * self._inv_mass
         else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
             k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
-            m_eff = (
-                self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
+            mu_s = (
+                self._mu_surface[None, :]
+                if self._sub_b is None
+                else self._mu_surface[self._sub_b][:, None]
             )
+            m_eff = self.model.mass_matrix + dt * mu_s[:, :, None, None] * k1[:, None]
             v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
@@ -791,8 +839,8 @@ class DbcSlamFilter:
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
         pred_full = pred
-        if pred.shape != (n_p, self.n_b, self.n_c, N_MODES):
-            pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
+        if pred.shape != (n_p, self.n_fb, self.n_c, N_MODES):
+            pred_full = np.broadcast_to(pred, (n_p, self.n_fb, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
             lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
         return _Entries(hyp, n_k, pi, ki, slot, modes_n, pbcm, lp)
@@ -815,7 +863,7 @@ class DbcSlamFilter:
             None if free.m_eff is None else free.m_eff.take(ent.pi, axis=0),
             sensitivity=inp.force is not None,
         )
-        l_cond = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        l_cond = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         l_cond[ent.pi, ent.ki] = ent.lp - 0.5 * sol.score
         l_cond = l_cond - self._lse(l_cond, 1)[:, None, :]
         with np.errstate(divide="ignore"):
@@ -850,13 +898,13 @@ class DbcSlamFilter:
             inp.lin,
             sigma_q=self._sigma_q,
         )
-        log_joint = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        log_joint = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         log_joint[ent.pi, ent.ki] = dyn.log_alpha + prop.log_pred
         flat = log_joint.reshape(n_p, -1)
         incr = self._lse(flat, 1)  # (P,)
-        gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
+        gumbel = -np.log(-np.log(self._shared_draws(self.rng.random, flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
-        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_b))
+        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_fb))
         n_star = ent.slot[np.arange(n_p), k_star]
         v_new, e_q = sample_gaussian_proposal(
             prop,
@@ -866,6 +914,7 @@ class DbcSlamFilter:
             v_cov=prop.v_cov[n_star, b_star],
             dt=dt,
             rng=self.rng,
+            draw=None if self._n_sub == 1 else self._shared_normals,
         )
         q_new = self.particles.q + dt * v_new + e_q
         if self.nq == 3:
@@ -877,7 +926,7 @@ class DbcSlamFilter:
         joint over (hypothesis, friction), then the friction belief (P, B), the per-contact
         mode marginals given b (P, B, C, 4) and overall (P, C, 4), and P(pair in contact)."""
         n_p = self.particles.size
-        log_post = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        log_post = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         v_rel = prop.v_new.take(ent.pi, axis=0)[:, None, :] - dyn.v_h
         dens = gaussian_log_density(v_rel, dyn.cov_h)
         log_post[ent.pi, ent.ki] = np.where(
@@ -893,7 +942,7 @@ class DbcSlamFilter:
             ent.pbcm.reshape(-1),
             weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
-        ).reshape(n_p, self.n_b, self.n_c, N_MODES)
+        ).reshape(n_p, self.n_fb, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
         tiny = 1e-12
         modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
@@ -911,13 +960,71 @@ class DbcSlamFilter:
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
-        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
+        # (P, pairs, Kmax); a bank's copies have one friction each: `_bank_evidence` sets it
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
         return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
+
+    def _bank_evidence(self, incr_rows: FloatArray, post: _Posterior) -> FloatArray:
+        """Friction bank: each particle's evidence (P,) = log sum_b bank[i, b] p(o | copy b)
+        from its copies' evidence (P B,); the bank belief becomes the posterior (held at the
+        prior during `friction_hold_steps`); the per-pair friction marginals and P(in
+        contact) of the particle (for the map and the estimate) from the bank."""
+        ps = self.particles
+        assert ps.bank is not None
+        n_p = ps.count
+        with np.errstate(divide="ignore"):
+            joint = np.log(ps.bank) + incr_rows.reshape(n_p, self._n_sub)
+        incr = self._lse(joint, 1)
+        if self._step > self.config.friction_hold_steps:
+            ok = np.isfinite(incr)
+            ps.bank = np.where(
+                ok[:, None], np.exp(joint - np.where(ok, incr, 0.0)[:, None]), ps.bank
+            )
+        post.fric_pair = self._pair_marginals(ps.bank)
+        post.p_contact = np.einsum(
+            "pb,pbc->pc", ps.bank, post.p_contact.reshape(n_p, self._n_sub, self.n_c)
+        )
+        return incr
+
+    def _shared_draws(
+        self, draw: Callable[[tuple[int, ...]], FloatArray], shape: tuple[int, ...]
+    ) -> FloatArray:
+        """Random numbers of `shape` (rows first); a bank's copies share their particle's
+        (common random numbers: the copies differ by their friction only)."""
+        if self._n_sub == 1:
+            return draw(shape)
+        per_particle = draw((shape[0] // self._n_sub, *shape[1:]))
+        return np.repeat(per_particle, self._n_sub, axis=0)
+
+    def _shared_normals(self, shape: tuple[int, ...]) -> FloatArray:
+        """Standard normals of `shape`, shared by a bank's copies (`_shared_draws`)."""
+        return self._shared_draws(self.rng.standard_normal, shape)
+
+    def _row_weights(self, w: FloatArray) -> FloatArray:
+        """Weights (P B,) of the rows of the state arrays: w (P,) x the bank belief."""
+        bank = self.particles.bank
+        return w if bank is None else np.asarray((w[:, None] * bank).reshape(-1))
+
+    def weighted_particles(self) -> tuple[FloatArray, FloatArray]:
+        """Particle poses (rows of the state arrays, (R, nq)) and their normalised weights
+        (R,) (bank copies weighted by their particle's friction belief): e.g. for markers."""
+        w, _ = normalise_log_weights(self.particles.log_w)
+        return self.particles.q, self._row_weights(w)
 
     def _update_beliefs(self, post: _Posterior) -> None:
         """Eq. (7): the predictive friction belief of the next step (held at the prior
         during `friction_hold_steps`) and the mode marginals given b."""
         ps = self.particles
+        if self._n_sub > 1:  # bank: per-copy friction is its own hypothesis
+            # a copy without any feasible hypothesis (zero evidence: its belief weight
+            # is 0 now) keeps its previous marginals instead of 0/0
+            bad = ~np.asarray(np.isfinite(post.modes_post).all(axis=(1, 2, 3)))
+            ps.modes = np.where(bad[:, None, None, None], ps.modes, post.modes_post)
+            return
         if self._step <= self.config.friction_hold_steps:
             # warm-up: wrong initial velocities are still being weeded out, and collisions
             # of those particles would bias the friction belief -> hold it at the prior.
@@ -941,7 +1048,7 @@ class DbcSlamFilter:
         ps.log_w = ps.log_w + incr
         if not np.any(np.isfinite(ps.log_w)):
             msg = (
-                f"all {ps.size} particles have zero likelihood at step {self._step}: the "
+                f"all {ps.count} particles have zero likelihood at step {self._step}: the "
                 f"observation {inp.observation} is incompatible with the model"
             )
             raise ModelError(msg)
@@ -954,9 +1061,12 @@ class DbcSlamFilter:
         ps.q, ps.v = prop.q_new, prop.v_new
         w, _ = normalise_log_weights(ps.log_w)
         s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
+        if ps.bank is not None:  # a particle's s: its most probable copy's
+            s_new = s_new.reshape(ps.count, self._n_sub, self.n_c)
+            s_new = s_new[np.arange(ps.count), np.argmax(ps.bank, axis=1)]
         pk = self.n_pairs * self._k_max
-        row = np.empty((ps.size, ps.history.buf.shape[2]))
-        row[:, :pk] = post.fric_pair.reshape(ps.size, pk)
+        row = np.empty((ps.count, ps.history.buf.shape[2]))
+        row[:, :pk] = post.fric_pair.reshape(ps.count, pk)
         row[:, pk : pk + self.n_c] = s_new
         row[:, pk + self.n_c :] = post.p_contact
         old = ps.history.push(row)
@@ -968,7 +1078,7 @@ class DbcSlamFilter:
         """Resample when the effective sample size falls below the threshold; returns
         (ESS before resampling, whether the set was resampled)."""
         ess = effective_sample_size(w)
-        if ess >= self.config.ess_threshold * self.particles.size:
+        if ess >= self.config.ess_threshold * self.particles.count:
             return ess, False
         self.particles.resample(self._resampler(w, self.rng))
         return ess, True
@@ -1029,7 +1139,7 @@ class DbcSlamFilter:
             phi=phi[:, None],
             vn_env=kin.vn_env.take(pi, axis=0)[:, None],
             vt_env=kin.vt_env.take(pi, axis=0)[:, None],
-            mu=self._mu[None],
+            mu=self._mu[None] if self._sub_b is None else self._mu[self._sub_b[pi]][:, None],
             dt=self.dt,
             scales=self._scales,
             groups=self._layout.obstacle,
@@ -1172,6 +1282,7 @@ class DbcSlamFilter:
         self,
         *,
         w: FloatArray,
+        row_w: FloatArray,
         map_w: FloatArray,
         q: FloatArray,
         v: FloatArray,
@@ -1182,11 +1293,18 @@ class DbcSlamFilter:
         log_ml: float,
         resampled: bool,
     ) -> Estimate:
+        """The per-step summary: weighted moments of the rows q, v (R, nq) and mode marginals
+        marg_post (R, C, 4) under row_w (R,); friction (pairs, Kmax) from the particles'
+        fric_pair under w (P,); the friction map under map_w (P,)."""
         pose = np.zeros(3)
         pose_cov = np.zeros((3, 3))
         twist = np.zeros(3)
         twist_cov = np.zeros((3, 3))
         nq = self.nq
+        friction = np.einsum("p,pqk->qk", w, fric_pair)
+        w = row_w
+        if self._n_sub > 1:  # copies without weight may hold 0/0 marginals: keep them out
+            marg_post = np.where((w > 0.0)[:, None, None], marg_post, 0.0)
         mean_q = w @ q
         dq = q - mean_q
         if nq == 3:
@@ -1200,7 +1318,6 @@ class DbcSlamFilter:
         twist[:nq] = mean_v
         twist_cov[:nq, :nq] = (dv * w[:, None]).T @ dv
         modes = np.einsum("p,pcm->cm", w, marg_post)
-        friction = np.einsum("p,pqk->qk", w, fric_pair)
         return Estimate(
             step=self._step,
             pose=pose,

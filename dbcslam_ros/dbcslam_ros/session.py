@@ -388,11 +388,8 @@ class FilterSession:
         """Particle configurations q (P, nq) and normalised weights (P,) (for markers)."""
         flt = self._filter
         assert flt is not None
-        if getattr(flt, "q", None) is None:
-            return np.zeros((0, self.scenario.nq)), np.zeros(0)
-        log_w = np.asarray(flt.log_w, dtype=np.float64)
-        w = np.exp(log_w - np.max(log_w))
-        return np.asarray(flt.q, dtype=np.float64), w / np.sum(w)
+        q, w = flt.weighted_particles()
+        return np.asarray(q, dtype=np.float64), np.asarray(w, dtype=np.float64)
 
     def last_joints(self) -> tuple[float, ...]:
         """Latest joint positions received (scenario.joints order), () if none."""
