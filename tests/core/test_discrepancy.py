@@ -45,7 +45,7 @@ from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.scenario import edge_scenario
 from dbcslam_core.synthetic import draw_edge_effect, edge_sweep_trajectory
 
-CFG = DiscrepancyConfig(particles=200, pictures=False)
+CFG = DiscrepancyConfig(particles=200, pictures=False, workers=2)
 DURATION = 6.0
 
 
@@ -66,8 +66,8 @@ def _close(name: str, got: float, true: float) -> bool:
     return abs(got - true) <= 0.25 * abs(true)
 
 
-# each analysis is ~40 filter runs (~1.5 s CPU each here): longer than the default per-test
-# timeout when the machine is shared
+# each analysis is ~15-25 filter runs (~1 s CPU each here, 2 processes): longer than the default
+# per-test timeout when the machine is shared
 SLOW = pytest.mark.timeout(1500)
 
 

@@ -1,24 +1,26 @@
 """Fitting an effect's parameters by maximising the filter's evidence on the training runs.
 
 One parameter (`fit_1d_steps`): the coarse grid of its `ParamSpace` walked outwards from
-the start value, both sides in step (one point per side and round); a side stops at the
-first point that does not score above the previous one (the score is taken as unimodal
-along one parameter at this resolution: once it drops, the peak is behind; a parameter the
-data do not resolve, e.g. a sensor bias along the edge, leaves the score unchanged). When
-the best grid point beats the starting value by less than the screening margin the effect
-is not refined (it cannot be named anyway: `analysis`). Otherwise, when the best grid point
-is the last one evaluated on its side, the bound of the range is evaluated too (an optimum
-at the bound is flagged, `FitResult.at_bound`, never named); then the peak is refined by
-successive parabolic interpolation in the search coordinate (log for factors) through the
-best point and its evaluated neighbours, safeguarded: the new point stays strictly inside
-the bracket, and a golden-section point of the larger side is used where the parabola is
-not concave (with the best point at the bound: the golden-section point towards its
-neighbour, once, stopping when it scores lower); it stops when the step is below 0.5 % of
-the range or after `refine_steps` points. The best evaluated point wins. Uncertainty: from
-the curvature c (nats per unit^2) of the parabola through the best point and its nearest
-evaluated neighbours, stderr = 1 / sqrt(-2 c) (Laplace approximation; inf when not
-concave). Several parameters (sensor_bias): coordinate steps, one 1-D fit per coordinate
-with the others at their current values (y, x[, yaw]).
+the start value, both sides in step (one point per side and round); a side stops after two
+points in a row that do not score above the best so far on that side (the score is taken as
+unimodal along one parameter at this resolution, up to single points where the filter lost
+track: the score of a mis-specified model is rough, e.g. with a hidden 75 ms sensor delay
+the training score was +3016 nats nominal, -2334 at 20 ms, +3271 at 50 ms, +6142 at 90 ms;
+a parameter the data do not resolve, e.g. a sensor bias along the edge, leaves the score
+unchanged). When the best grid point beats the starting value by less than the screening
+margin the effect is not refined (it cannot be named anyway: `analysis`). Otherwise, when
+the best grid point is the last one evaluated on its side, the bound of the range is
+evaluated too (an optimum at the bound is flagged, `FitResult.at_bound`, never named); then
+the peak is refined by successive parabolic interpolation in the search coordinate (log for
+factors) through the best point and its evaluated neighbours, safeguarded: the new point
+stays strictly inside the bracket, and a golden-section point of the larger side is used
+where the parabola is not concave (with the best point at the bound: the golden-section
+point towards its neighbour, once, stopping when it scores lower); it stops when the step
+is below 0.5 % of the range or after `refine_steps` points. The best evaluated point wins.
+Uncertainty: from the curvature c (nats per unit^2) of the parabola through the best point
+and its nearest evaluated neighbours, stderr = 1 / sqrt(-2 c) (Laplace approximation; inf
+when not concave). Several parameters (sensor_bias): coordinate steps, one 1-D fit per
+coordinate with the others at their current values (y, x[, yaw]).
 
 The fits are generators (`FitSteps`): they yield the batch of hypotheses they need scored
 next and receive the scores. `drive` runs one to its end; `drive_all` runs several in
@@ -174,7 +176,7 @@ def fit_1d_steps(
         sorted((x for x in sp.grid if sp.to_u(x) < u_base), reverse=True),
         sorted(x for x in sp.grid if sp.to_u(x) > u_base),
     ]
-    nxt, prev = [0, 0], [base[1], base[1]]
+    nxt, top, misses = [0, 0], [base[1], base[1]], [0, 0]
     while True:  # the grid outwards, both sides in step
         batch = [(s, sides[s][nxt[s]]) for s in (0, 1) if nxt[s] < len(sides[s])]
         if not batch:
@@ -182,8 +184,9 @@ def fit_1d_steps(
         vals = yield [make(x) for _, x in batch]
         for (s, x), val in zip(batch, vals, strict=True):
             pts[sp.to_u(x)] = val
-            nxt[s] = nxt[s] + 1 if val > prev[s] else len(sides[s])
-            prev[s] = val
+            misses[s] = 0 if val > top[s] else misses[s] + 1
+            top[s] = max(top[s], val)
+            nxt[s] = nxt[s] + 1 if misses[s] < 2 else len(sides[s])
 
     def best() -> tuple[float, float]:
         u = max(pts, key=lambda k: pts[k])
