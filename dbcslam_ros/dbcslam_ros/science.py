@@ -1,12 +1,13 @@
 """Benchmark of the discrepancy analysis: hidden effects in seeded random draws.
 
-``python -m dbcslam_ros.science --out DIR [--draws 30] [--clean 30] [--particles 300]``
-(``make science``). Edge scenario as in the paper (point mass, rough mu 0.9 region between
-smooth mu 0.3 edge, 1 cm pose noise), data from `synthetic.edge_sweep_trajectory` (10 s,
-swept across the regions, two lift-offs): per draw i one effect uniformly from
-`synthetic.EDGE_HIDDEN_EFFECTS` at a realistic size (`synthetic.draw_edge_effect`) hidden in
-a training run and an independent held-out run; clean draws hide nothing. Each draw runs
-`dbcslam_core.discrepancy.analyse` (train on one run, score on the other) and counts:
+``python -m dbcslam_ros.science --out DIR [--draws 30] [--clean 30] [--particles 300]
+[--workers 2] [-v]`` (``make science``). Edge scenario as in the paper (point mass, rough
+mu 0.9 region between smooth mu 0.3 edge, 1 cm pose noise), data from
+`synthetic.edge_sweep_trajectory` (10 s, swept across the regions, two lift-offs): per draw
+i one effect uniformly from `synthetic.EDGE_HIDDEN_EFFECTS` at a realistic size
+(`synthetic.draw_edge_effect`) hidden in a training run and an independent held-out run;
+clean draws hide nothing. Each draw runs `dbcslam_core.discrepancy.analyse` (train on one
+run, score on the other) and counts:
 
 * right: the verdict names the hidden effect (mass_scale / input_gain: the pair named
   together, or the hidden one alone) and its parameters are within 25 % (positions within
@@ -14,7 +15,8 @@ a training run and an independent held-out run; clean draws hide nothing. Each d
 * wrong: another effect named, or the right one with a parameter off;
 * none: nothing named (on clean draws: the right answer).
 
-Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table) after every
+Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table, with the wall
+time, the summed CPU time of the filter runs and their number per analysis) after every
 draw, so an interrupted run leaves its partial table; progress on stderr. Parts of the
 benchmark can run as separate processes (``--start``, ``--draws``, ``--clean``) and be
 merged: ``python -m dbcslam_ros.science --out DIR --merge PART_DIR ...``.

@@ -139,7 +139,9 @@ class Scorer:
     """Runs the filter over runs under hypotheses; caches every (hypothesis, run, seed).
 
     Use as a context manager when `ScoreConfig.workers` > 1 (the process pool is closed on
-    exit; `close` does the same). `evaluations`: filter runs made; `cpu_seconds`: their
+    exit; `close` does the same). The pool uses the `forkserver` start method (workers do
+    not inherit the caller's threads), so a script that runs it needs the usual
+    ``if __name__ == "__main__":`` guard. `evaluations`: filter runs made; `cpu_seconds`: their
     summed CPU time (in whichever process ran them).
     """
 
