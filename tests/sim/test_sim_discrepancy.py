@@ -49,7 +49,7 @@ def _rng(name: str) -> np.random.Generator:
 
 
 CFG = DiscrepancyConfig(particles=200, pictures=False, workers=2)
-pytestmark = pytest.mark.timeout(1500)  # one analysis: ~40 filter runs
+pytestmark = pytest.mark.timeout(1500)  # one analysis: ~20-30 filter runs in 2 processes
 
 
 def test_pybullet_hidden_viscous_damping() -> None:
