@@ -314,6 +314,9 @@ class Estimate:
     live_hypotheses: mean number of live joint mode hypotheses per particle.
     log_likelihood: log p(o_l | o_{0:l-1}) (0 without observation). resampled: whether the
     particles were resampled in this step. step: step counter (1 for the first step).
+    particle_poses (R, nq) and particle_weights (R,): the particle cloud the estimate was
+    computed from (rows of the state arrays before resampling; weights sum to 1), e.g. for
+    visualisation.
     """
 
     step: int
@@ -328,6 +331,18 @@ class Estimate:
     live_hypotheses: float
     log_likelihood: float
     resampled: bool
+    particle_poses: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    particle_weights: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def non_finite_field(self) -> str | None:
+        """Name of the first output field holding a NaN or infinity (None: all finite)."""
+        for name in ("pose", "pose_cov", "twist", "twist_cov", "modes", "friction"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                return name
+        for pair, probs in enumerate(self.friction_map.probs):
+            if not np.all(np.isfinite(probs)):
+                return f"friction map (pair {pair})"
+        return None
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
@@ -1331,6 +1346,8 @@ class DbcSlamFilter:
             live_hypotheses=live,
             log_likelihood=log_ml,
             resampled=resampled,
+            particle_poses=q,
+            particle_weights=w,
         )
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:
