@@ -28,7 +28,7 @@ and stops both processes by PID (also on failure or Ctrl-C). Reported per scenar
 
 A run "keeps up" when at most 1 % of the received poses were dropped for backlog and the
 latency p95 is below the sample period. Writes ``bench_live.md`` and ``bench_live.json`` into
-``--out`` (default ``dbcslam_core/doc/results``) and prints the Markdown table. The machine's
+``--out`` (default ``dbcslam_ros/research/results``) and prints the Markdown table. The machine's
 load average at the start of each run is recorded: on a busy machine the live numbers say
 little; the offline CPU time does.
 """
@@ -55,7 +55,7 @@ import numpy as np
 
 __all__ = ["LiveResult", "OfflineResult", "main", "offline_cpu", "run_live"]
 
-DEFAULT_OUT = Path("dbcslam_core/doc/results")
+DEFAULT_OUT = Path("dbcslam_ros/research/results")
 SCENARIOS: tuple[str, ...] = ("edge", "gripper", "push")
 #: Fraction of received poses dropped for backlog up to which a run still "keeps up".
 KEEP_UP_DROP_FRACTION = 0.01
