@@ -53,6 +53,8 @@ from typing import Any
 
 import numpy as np
 
+from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, TRUTH_POSE
+
 __all__ = ["LiveResult", "OfflineResult", "main", "offline_cpu", "run_live"]
 
 DEFAULT_OUT = Path("dbcslam_ros/research/results")
@@ -173,20 +175,18 @@ def run_live(
 
     cls = rt.message_class
     reliable = rt.qos_profile("default", depth=1000)
-    node.create_subscription(
-        cls("geometry_msgs/msg/PoseStamped"), "/truth/object/pose", on_truth, reliable
-    )
+    node.create_subscription(cls("geometry_msgs/msg/PoseStamped"), TRUTH_POSE, on_truth, reliable)
     node.create_subscription(
         cls("geometry_msgs/msg/PoseStamped"),
-        "/object/pose",
+        OBJECT_POSE,
         on_obs,
         rt.qos_profile("sensor_data", depth=1000),
     )
     node.create_subscription(
-        cls("geometry_msgs/msg/PoseWithCovarianceStamped"), "/dbcslam/pose", on_est, reliable
+        cls("geometry_msgs/msg/PoseWithCovarianceStamped"), POSE, on_est, reliable
     )
     node.create_subscription(
-        cls("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", on_diag, reliable
+        cls("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS, on_diag, reliable
     )
     py = sys.executable
     filter_cmd = [py, "-m", "dbcslam_ros.filter_node", "--ros-args"]
