@@ -38,7 +38,7 @@ experiments: venv
 	$(BIN)/python -m dbcslam_ros.readme_results
 
 science: venv
-	$(BIN)/python -m dbcslam_ros.science --out out/science
+	$(BIN)/python -m dbcslam_ros.science --out dbcslam_ros/research/results/science
 
 bench: venv
 	$(BIN)/python -m dbcslam_ros.bench

@@ -15,6 +15,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .angles import wrap_angle
 from .errors import ModelError
 from .scenario import PRESSURE_MODELS, Disk, HalfSpace, Scenario
 
@@ -57,11 +58,6 @@ def cross2(a: ArrayLike, b: ArrayLike) -> F64:
     aa = np.asarray(a, dtype=np.float64)
     bb = np.asarray(b, dtype=np.float64)
     return np.asarray(aa[..., 0] * bb[..., 1] - aa[..., 1] * bb[..., 0], dtype=np.float64)
-
-
-def wrap_angle(a: ArrayLike) -> F64:
-    """Angles wrapped to [-pi, pi)."""
-    return np.asarray((np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi)
 
 
 def _poly(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:

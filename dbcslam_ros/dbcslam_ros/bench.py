@@ -22,7 +22,7 @@ model, position noise and warm-up; the black-box filter's velocity process noise
 (tuned) one, ``NCPFilterConfig.default_noise``, because with DBC-SLAM's tighter noise the
 bootstrap filter degenerates.
 
-Writes ``bench.md`` and ``bench.json`` into ``--out`` (default ``dbcslam_core/doc/results``)
+Writes ``bench.md`` and ``bench.json`` into ``--out`` (default ``dbcslam_ros/research/results``)
 and prints the Markdown table.
 """
 
@@ -54,7 +54,7 @@ from dbcslam_ros.experiments import command_line, progress_printer, utc_now, wri
 
 __all__ = ["contact_window", "main", "reading_lines", "slice_trajectory"]
 
-DEFAULT_OUT = Path("dbcslam_core/doc/results")
+DEFAULT_OUT = Path("dbcslam_ros/research/results")
 
 
 def slice_trajectory(tr: Trajectory, start: int, stop: int) -> Trajectory:

@@ -28,7 +28,7 @@ and stops both processes by PID (also on failure or Ctrl-C). Reported per scenar
 
 A run "keeps up" when at most 1 % of the received poses were dropped for backlog and the
 latency p95 is below the sample period. Writes ``bench_live.md`` and ``bench_live.json`` into
-``--out`` (default ``dbcslam_core/doc/results``) and prints the Markdown table. The machine's
+``--out`` (default ``dbcslam_ros/research/results``) and prints the Markdown table. The machine's
 load average at the start of each run is recorded: on a busy machine the live numbers say
 little; the offline CPU time does.
 """
@@ -53,9 +53,11 @@ from typing import Any
 
 import numpy as np
 
+from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, TRUTH_POSE
+
 __all__ = ["LiveResult", "OfflineResult", "main", "offline_cpu", "run_live"]
 
-DEFAULT_OUT = Path("dbcslam_core/doc/results")
+DEFAULT_OUT = Path("dbcslam_ros/research/results")
 SCENARIOS: tuple[str, ...] = ("edge", "gripper", "push")
 #: Fraction of received poses dropped for backlog up to which a run still "keeps up".
 KEEP_UP_DROP_FRACTION = 0.01
@@ -173,20 +175,18 @@ def run_live(
 
     cls = rt.message_class
     reliable = rt.qos_profile("default", depth=1000)
-    node.create_subscription(
-        cls("geometry_msgs/msg/PoseStamped"), "/truth/object/pose", on_truth, reliable
-    )
+    node.create_subscription(cls("geometry_msgs/msg/PoseStamped"), TRUTH_POSE, on_truth, reliable)
     node.create_subscription(
         cls("geometry_msgs/msg/PoseStamped"),
-        "/object/pose",
+        OBJECT_POSE,
         on_obs,
         rt.qos_profile("sensor_data", depth=1000),
     )
     node.create_subscription(
-        cls("geometry_msgs/msg/PoseWithCovarianceStamped"), "/dbcslam/pose", on_est, reliable
+        cls("geometry_msgs/msg/PoseWithCovarianceStamped"), POSE, on_est, reliable
     )
     node.create_subscription(
-        cls("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", on_diag, reliable
+        cls("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS, on_diag, reliable
     )
     py = sys.executable
     filter_cmd = [py, "-m", "dbcslam_ros.filter_node", "--ros-args"]

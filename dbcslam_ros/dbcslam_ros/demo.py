@@ -34,6 +34,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
+from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, SCENARIO
 from dbcslam_ros.errors import DbcSlamRosError, UsageError
 from dbcslam_ros.filter_node import LIVE_PARTICLES
 
@@ -241,7 +242,7 @@ def run_demo(opts: DemoOptions) -> DemoResult:
         _wait(
             recorder,
             "the filter's first /diagnostics",
-            lambda: recorder.counts.get("/diagnostics", 0) > 0 or filt.proc.poll() is not None,
+            lambda: recorder.counts.get(DIAGNOSTICS, 0) > 0 or filt.proc.poll() is not None,
             opts.startup_timeout_s,
         )
         if filt.proc.poll() is not None:
@@ -286,7 +287,7 @@ def run_demo(opts: DemoOptions) -> DemoResult:
         quiet_since = time.monotonic()
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline:
-            n = recorder.counts.get("/dbcslam/pose", 0)
+            n = recorder.counts.get(POSE, 0)
             if n != last:
                 last, quiet_since = n, time.monotonic()
             elif time.monotonic() - quiet_since >= max(opts.drain_s, 1.1):
@@ -295,7 +296,7 @@ def run_demo(opts: DemoOptions) -> DemoResult:
             recorder.updated.clear()
         codes["filter"] = filt.stop(10.0)
         codes["record"] = recorder.stop(15.0)
-        if recorder.counts.get("/dbcslam/pose", 0) == 0 and not _has_estimates(bag):
+        if recorder.counts.get(POSE, 0) == 0 and not _has_estimates(bag):
             msg = f"the filter published no estimates:\n{filt.tail()}"
             raise DemoError(msg)
     finally:
@@ -309,7 +310,7 @@ def _has_estimates(bag: Path) -> bool:
     from dbcslam_ros.bag import open_bag
 
     with open_bag(bag, salvage=True) as reader:
-        return reader.counts().get("/dbcslam/pose", 0) > 0
+        return reader.counts().get(POSE, 0) > 0
 
 
 def _summarise(
@@ -322,7 +323,7 @@ def _summarise(
     from dbcslam_ros.evaluate import evaluate_bag, load_bag_arrays, metrics_table, write_metrics
 
     arrays = load_bag_arrays(bag, salvage=True)
-    if arrays.counts.get("/scenario", 0) > 1:
+    if arrays.counts.get(SCENARIO, 0) > 1:
         domain = os.environ.get("ROS_DOMAIN_ID", "0")
         say(
             f"warning: {arrays.counts['/scenario']} /scenario messages recorded: another "
@@ -333,7 +334,7 @@ def _summarise(
         "scenario": opts.scenario,
         "engine": opts.engine,
         "exit_codes": codes,
-        "poses": arrays.counts.get("/object/pose", 0),
+        "poses": arrays.counts.get(OBJECT_POSE, 0),
     }
     plots: list[Path] = []
     if opts.plots:

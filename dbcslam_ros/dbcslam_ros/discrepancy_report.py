@@ -23,17 +23,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.discrepancy import Analysis, DiscrepancyConfig, Run, analyse
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros.bag import find_bags, open_bag
+from dbcslam_ros.contract import JOINT_STATES, OBJECT_POSE, OBJECT_WRENCH, SCENARIO
 from dbcslam_ros.errors import BagError, UsageError
 
 __all__ = ["filter_tracking", "load_run", "run_discrepancy", "write_report"]
 
 F64 = NDArray[np.float64]
 NS = 1_000_000_000
-INPUT_TOPICS = ("/scenario", "/object/pose", "/object/wrench", "/joint_states")
+INPUT_TOPICS = (SCENARIO, OBJECT_POSE, OBJECT_WRENCH, JOINT_STATES)
 
 
 def _stamp(header: Any) -> int:
@@ -41,7 +43,7 @@ def _stamp(header: Any) -> int:
 
 
 def _yaw(q: Any) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
 
 
 def load_run(path: str | Path) -> Run:
@@ -55,13 +57,13 @@ def load_run(path: str | Path) -> Run:
         with open_bag(p) as reader:
             counts = reader.counts()
             for raw, msg in reader.decoded(t for t in INPUT_TOPICS if counts.get(t)):
-                if raw.topic == "/scenario" and scenario is None:
+                if raw.topic == SCENARIO and scenario is None:
                     try:
                         scenario = Scenario.from_yaml(str(msg.data))
                     except (DbcSlamError, ValueError, TypeError, KeyError) as err:
                         problem = f"{p}: /scenario does not parse: {err}"
                         raise BagError(problem) from err
-                elif raw.topic == "/object/pose":
+                elif raw.topic == OBJECT_POSE:
                     pz = msg.pose
                     poses.append(
                         (
@@ -71,12 +73,12 @@ def load_run(path: str | Path) -> Run:
                             _yaw(pz.orientation),
                         )
                     )
-                elif raw.topic == "/object/wrench":
+                elif raw.topic == OBJECT_WRENCH:
                     w = msg.wrench
                     wrenches.append(
                         (_stamp(msg.header), float(w.force.x), float(w.force.y), float(w.torque.z))
                     )
-                elif raw.topic == "/joint_states":
+                elif raw.topic == JOINT_STATES:
                     names = [str(n) for n in msg.name]
                     pos = [float(x) for x in msg.position]
                     joints.append((_stamp(msg.header), dict(zip(names, pos, strict=False))))

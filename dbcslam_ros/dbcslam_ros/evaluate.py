@@ -52,10 +52,28 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros.bag import open_bag
+from dbcslam_ros.contract import (
+    CONTACT_MODES,
+    DIAGNOSTICS,
+    ESTIMATE_TOPICS,
+    FRICTION,
+    FRICTION_MAP,
+    JOINT_STATES,
+    OBJECT_POSE,
+    POSE,
+    PUSHER_CONTACT,
+    PUSHER_WRENCH,
+    SCENARIO,
+    TRUTH_CONTACT_MODES,
+    TRUTH_FRICTION,
+    TRUTH_POSE,
+    TRUTH_TOPICS,
+)
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -77,24 +95,17 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 NS = 1_000_000_000
 
-ESTIMATE_TOPICS: tuple[str, ...] = (
-    "/dbcslam/pose",
-    "/dbcslam/contact_modes",
-    "/dbcslam/friction",
-    "/dbcslam/friction_map",
-)
-TRUTH_TOPICS: tuple[str, ...] = ("/truth/object/pose", "/truth/contact_modes", "/truth/friction")
 #: Measured (not simulated) contact flag and pusher force topics.
-FLAG_TOPIC = "/pusher/contact"
-PUSHER_WRENCH_TOPIC = "/pusher/wrench"
+FLAG_TOPIC = PUSHER_CONTACT
+PUSHER_WRENCH_TOPIC = PUSHER_WRENCH
 #: Gap (m) below which the touching readout of ``contact_flag_agreement_touch`` counts a
 #: contact as closed.
 TOUCH_TOL = 0.001
 _READ_TOPICS = (
-    "/scenario",
-    "/joint_states",
-    "/object/pose",
-    "/diagnostics",
+    SCENARIO,
+    JOINT_STATES,
+    OBJECT_POSE,
+    DIAGNOSTICS,
     FLAG_TOPIC,
     PUSHER_WRENCH_TOPIC,
     *ESTIMATE_TOPICS,
@@ -180,7 +191,7 @@ def _stamp(header: Any) -> int:
 
 
 def _yaw(q: Any) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
 
 
 def _planar(pose: Any) -> tuple[float, float, float]:
@@ -259,17 +270,17 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
         for raw, msg in reader.decoded(t for t in _READ_TOPICS if out.counts.get(t)):
             topic = raw.topic
             lt = raw.log_time_ns
-            if topic == "/dbcslam/pose":
+            if topic == POSE:
                 stamp = _stamp(msg.header)
                 cov6 = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)
                 idx = np.ix_((0, 1, 5), (0, 1, 5))
                 est.append((stamp, _planar(msg.pose.pose), cov6[idx]))
                 est_log.append((lt, stamp))
-            elif topic == "/dbcslam/contact_modes":
+            elif topic == CONTACT_MODES:
                 modes.append((lt, _array(msg)))
-            elif topic == "/dbcslam/friction":
+            elif topic == FRICTION:
                 friction.append((lt, _array(msg)))
-            elif topic == "/dbcslam/friction_map":
+            elif topic == FRICTION_MAP:
                 info = msg.info
                 data = np.asarray(msg.data, dtype=np.float64).reshape(
                     int(info.height), int(info.width)
@@ -279,13 +290,13 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
                     cell=float(info.resolution),
                     p_high=np.where(data < 0, np.nan, data / 100.0),
                 )
-            elif topic == "/truth/object/pose":
+            elif topic == TRUTH_POSE:
                 stamp = _stamp(msg.header)
                 truth.append((stamp, _planar(msg.pose)))
                 truth_log.append((lt, stamp))
-            elif topic == "/truth/contact_modes":
+            elif topic == TRUTH_CONTACT_MODES:
                 tmodes.append((lt, _array(msg)))
-            elif topic == "/truth/friction":
+            elif topic == TRUTH_FRICTION:
                 tfriction.append((lt, _array(msg)))
             elif topic == FLAG_TOPIC:
                 flags.append((lt, _array(msg)))
@@ -294,21 +305,21 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
                 forces.append(
                     (_stamp(msg.header), (float(w.force.x), float(w.force.y), float(w.torque.z)))
                 )
-            elif topic == "/joint_states":
+            elif topic == JOINT_STATES:
                 joints.append(
                     (
                         _stamp(msg.header),
                         dict(zip(msg.name, (float(v) for v in msg.position), strict=False)),
                     )
                 )
-            elif topic == "/object/pose":
+            elif topic == OBJECT_POSE:
                 obs.append((_stamp(msg.header), _planar(msg.pose)))
-            elif topic == "/diagnostics":
+            elif topic == DIAGNOSTICS:
                 values: dict[str, str] = {}
                 for status in msg.status:
                     values.update({str(kv.key): str(kv.value) for kv in status.values})
                 out.diagnostics.append((_stamp(msg.header), values))
-            elif topic == "/scenario" and out.scenario is None:
+            elif topic == SCENARIO and out.scenario is None:
                 try:
                     out.scenario = Scenario.from_yaml(str(msg.data))
                 except (DbcSlamError, ValueError, TypeError, KeyError) as err:
@@ -416,7 +427,7 @@ def evaluate_bag(
             f"{p}: no estimates (/dbcslam/pose has no messages); run `dbcslam replay` on it "
             "first or record the filter's outputs"
         )
-        raise MissingTopicsError(msg, ("/dbcslam/pose",))
+        raise MissingTopicsError(msg, (POSE,))
     sc = arr.scenario
     res: dict[str, Any] = {
         "bag": str(p),
@@ -444,7 +455,7 @@ def evaluate_bag(
     res["matched"] = int(i_est.size)
     if i_est.size == 0:
         msg = f"{p}: no estimate stamp matches a /truth/object/pose stamp (within dt/2)"
-        raise MissingTopicsError(msg, ("/truth/object/pose",))
+        raise MissingTopicsError(msg, (TRUTH_POSE,))
     est_xy = arr.est_pose[i_est, :2]
     tru_xy = arr.truth_pose[i_tru, :2]
     pos = m.position_rmse(est_xy, tru_xy)

@@ -1,7 +1,7 @@
 """`make experiments`: the paper's experiments over seeds, a target table and figures.
 
 Runs :func:`dbcslam_core.experiments.run_experiments` (edge and gripper, DBC-SLAM and the
-fixed-friction baseline), then writes into ``--out`` (default ``dbcslam_core/doc/results``):
+fixed-friction baseline), then writes into ``--out`` (default ``dbcslam_ros/research/results``):
 
 * ``experiments.md``: targets (median over seeds vs threshold, PASS/FAIL), medians per method
   and per-seed values;
@@ -76,7 +76,7 @@ __all__ = [
     "write_outputs",
 ]
 
-DEFAULT_OUT = Path("dbcslam_core/doc/results")
+DEFAULT_OUT = Path("dbcslam_ros/research/results")
 
 TABLE_METRICS: tuple[tuple[str, str, float], ...] = (
     # (metric, column header, scale)

@@ -11,7 +11,7 @@ pusher's F/T reading at t_k, ``/pusher/wrench``, as a ``ForceObservation`` with 
 preset's ``force_noise``, as the filter node does), on the edge also the fixed-friction
 baseline frozen to each candidate and on push also DBC-SLAM without the force reading
 (``dbcslam_no_force``); score with ``dbcslam_core.metrics`` and write into ``--out`` (default
-``dbcslam_core/doc/results/sim``):
+``dbcslam_ros/research/results/sim``):
 
 * ``experiments_sim.md`` / ``experiments_sim.json``: targets (median over seeds vs
   threshold, PASS/FAIL), medians per (scenario, method), per-seed values;
@@ -103,7 +103,7 @@ F64 = NDArray[np.float64]
 NO_FORCE = "dbcslam_no_force"
 """Method label of DBC-SLAM on push without the /pusher/wrench force reading."""
 
-DEFAULT_OUT = Path("dbcslam_core/doc/results/sim")
+DEFAULT_OUT = Path("dbcslam_ros/research/results/sim")
 SIM_SCENARIOS: tuple[str, ...] = ("edge", "gripper", "push", "push_offcentre")
 
 SIM_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {

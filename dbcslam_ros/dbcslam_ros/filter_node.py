@@ -46,7 +46,16 @@ from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.geometry import contact_kinematics
 from dbcslam_core.rbpf import FilterConfig
 from dbcslam_core.scenario import Scenario
+from dbcslam_ros import contract
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.contract import (
+    DIAGNOSTICS,
+    MARKERS,
+    OUTPUT_TOPICS,
+    POSE,
+    SCENARIO,
+    message_type,
+)
 from dbcslam_ros.convert import (
     InputRejected,
     PoseReading,
@@ -76,15 +85,7 @@ __all__ = [
 ]
 
 #: Output topics and their types (contract table), in publication order.
-OUTPUT_TYPES: dict[str, str] = {
-    "/dbcslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "/dbcslam/odometry": "nav_msgs/msg/Odometry",
-    "/dbcslam/contact_modes": "std_msgs/msg/Float64MultiArray",
-    "/dbcslam/friction": "std_msgs/msg/Float64MultiArray",
-    "/dbcslam/friction_map": "nav_msgs/msg/OccupancyGrid",
-    "/dbcslam/markers": "visualization_msgs/msg/MarkerArray",
-    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-}
+OUTPUT_TYPES: dict[str, str] = {topic: message_type(topic) for topic in OUTPUT_TOPICS}
 
 # name: (default, description). Declared with these types and descriptions.
 PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -191,11 +192,12 @@ def build_config(kind: str, params: dict[str, Any]) -> FilterConfig:
 #: Input topics (type, FilterCore method), in subscription order: inputs before the pose, so
 #: an executor serving subscriptions in creation order hands over a step's inputs first.
 INPUT_TOPICS: dict[str, tuple[str, str]] = {
-    "/scenario": ("std_msgs/msg/String", "on_scenario"),
-    "/object/wrench": ("geometry_msgs/msg/WrenchStamped", "on_wrench"),
-    "/joint_states": ("sensor_msgs/msg/JointState", "on_joints"),
-    "/pusher/wrench": ("geometry_msgs/msg/WrenchStamped", "on_pusher_wrench"),
-    "/object/pose": ("geometry_msgs/msg/PoseStamped", "on_pose"),
+    topic: (message_type(topic), method)
+    for topic, method in zip(
+        contract.INPUT_TOPICS,
+        ("on_scenario", "on_wrench", "on_joints", "on_pusher_wrench", "on_pose"),
+        strict=True,
+    )
 }
 
 
@@ -429,11 +431,11 @@ class FilterCore:
             return
         for topic, m in msgs.items():  # pose first (dict order)
             self._publish_msg(topic, m)
-            if topic == "/dbcslam/pose":
+            if topic == POSE:
                 self.latencies.append(time.monotonic() - received)
         if int(self.params["marker_particles"]) > 0 and self._marker_due(res.stamp_ns):
             try:
-                self._publish_msg("/dbcslam/markers", self._markers(res))
+                self._publish_msg(MARKERS, self._markers(res))
             except (ValueError, DbcSlamError) as err:
                 self.not_published["markers"] += 1
                 self.log.warning(f"markers not published: {err}", throttle_duration_sec=5.0)
@@ -621,7 +623,7 @@ class FilterCore:
         )
         header = cls("std_msgs/msg/Header")(stamp=ns_to_stamp(stamp_ns), frame_id="")
         self._publish_msg(
-            "/diagnostics",
+            DIAGNOSTICS,
             cls("diagnostic_msgs/msg/DiagnosticArray")(header=header, status=[status]),
         )
 
@@ -656,7 +658,7 @@ class FilterNode(Node):
                 rt.message_class(type_name),
                 topic,
                 callbacks[topic],
-                rt.qos_profile("latched") if topic == "/scenario" else sensor,
+                rt.qos_profile("latched") if topic == SCENARIO else sensor,
             )
             for topic, (type_name, _m) in INPUT_TOPICS.items()
         ]

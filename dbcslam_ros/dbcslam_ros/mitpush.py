@@ -692,10 +692,6 @@ def _window_mean(t: FloatArray, values: FloatArray, grid: FloatArray, dt: float)
     return np.where(count > 0, mean, interp)
 
 
-def _wrap(a: FloatArray) -> FloatArray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
 @dataclass(frozen=True)
 class Clock:
     """The streams of a push on one clock (the interval where all three have data).

@@ -19,7 +19,7 @@
    whose F/T stream is stale); final friction posteriors (pusher, surface) and their means.
    A diagnostic column (not the target) scores the readout "P(not separated) > 0.5 or the
    pusher within 1 mm of the estimated outline" (``contact_flag_agreement_touch``).
-4. Writes into ``--out`` (default ``dbcslam_core/doc/results/mitpush/``): ``mitpush.md``
+4. Writes into ``--out`` (default ``dbcslam_ros/research/results/mitpush/``): ``mitpush.md``
    (table per shape and overall: medians over pushes, PASS/FAIL vs the targets),
    ``mitpush.json`` (the same plus every push's metrics) and ``mitpush_<shape>.png``
    (the push with the median contact agreement: trajectory vs Vicon, P(contact) vs the flag
@@ -76,7 +76,7 @@ _REPO = Path(__file__).resolve().parents[2]
 #: Default data location: the shared dataset copy next to the repository.
 DEFAULT_DATA = _REPO.parent / "shared" / "data" / "mit-push"
 #: Default output directory of the table and figures.
-DEFAULT_OUT = _REPO / "dbcslam_core" / "doc" / "results" / "mitpush"
+DEFAULT_OUT = Path("dbcslam_ros/research/results/mitpush")  # relative to the working directory
 #: Target: median pose RMSE (position and yaw) as a multiple of the added noise std.
 TARGET_RMSE_OVER_NOISE = 0.6
 #: Target: median contact/no-contact agreement with the measured flag.

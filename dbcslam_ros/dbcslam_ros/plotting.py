@@ -21,6 +21,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from dbcslam_core.angles import wrap_angle
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -66,10 +68,6 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     starts = np.flatnonzero(d == 1)
     stops = np.flatnonzero(d == -1)
     return list(zip(starts.tolist(), stops.tolist(), strict=True))
-
-
-def _wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
 
 
 def shade_mask(ax: Axes, t: ArrayLike, mask: ArrayLike, label: str | None = None) -> None:
@@ -431,8 +429,8 @@ def _gripper_yaw(ax: Axes, tr: RunTrace) -> None:
         ax,
         tr.t,
         yaw_true,
-        yaw_true + _wrap(tr.obs_q[:, 2] - yaw_true),
-        yaw_true + _wrap(tr.est_q[:, 2] - yaw_true),
+        yaw_true + wrap_angle(tr.obs_q[:, 2] - yaw_true),
+        yaw_true + wrap_angle(tr.est_q[:, 2] - yaw_true),
         ylabel="yaw (unwrapped) [rad]",
         title="Gripper: orientation over time",
     )

@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("data", nargs="?", default="../shared/data/mit-push", type=Path)
-    ap.add_argument("--out", type=Path, default=Path("results/push_nmse"))
+    ap.add_argument("--out", type=Path, default=Path("dbcslam_ros/research/results/push_nmse"))
     args = ap.parse_args(argv)
     if not (args.data / "abs" / "train").is_dir():
         print(f"push_nmse: no abs/train folder under {args.data}", file=sys.stderr)

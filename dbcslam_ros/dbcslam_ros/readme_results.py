@@ -3,7 +3,7 @@ wrote.
 
 The part of ``README.md`` between the lines ``<!-- results:begin -->`` and
 ``<!-- results:end -->`` is replaced by Markdown built from the results directory
-(default ``dbcslam_core/doc/results``):
+(default ``dbcslam_ros/research/results``):
 
 * the target table of the synthetic paper experiments (``experiments.json``, written by
   ``python -m dbcslam_ros.experiments``),
@@ -54,7 +54,7 @@ __all__ = [
 MARKER_BEGIN = "<!-- results:begin -->"
 MARKER_END = "<!-- results:end -->"
 DEFAULT_README = Path("README.md")
-DEFAULT_RESULTS = Path("dbcslam_core/doc/results")
+DEFAULT_RESULTS = Path("dbcslam_ros/research/results")
 
 _SCENARIO_NAMES: dict[str, str] = {
     "edge": "Edge (table polishing)",

@@ -44,6 +44,18 @@ import numpy as np
 import yaml
 
 from dbcslam_ros.bag import BagWriter, contract_qos, find_bags, open_bag
+from dbcslam_ros.contract import (
+    DIAGNOSTICS,
+    INPUT_TOPICS,
+    JOINT_STATES,
+    OBJECT_POSE,
+    OBJECT_WRENCH,
+    POSE,
+    SCENARIO,
+    TRUTH_CONTACT_MODES,
+    TRUTH_FRICTION,
+    TRUTH_POSE,
+)
 from dbcslam_ros.errors import BagError, UsageError
 
 __all__ = [
@@ -58,14 +70,6 @@ __all__ = [
 
 NS = 1_000_000_000
 
-#: Input topics the filter node subscribes to.
-INPUT_TOPICS: tuple[str, ...] = (
-    "/scenario",
-    "/object/wrench",
-    "/joint_states",
-    "/pusher/wrench",
-    "/object/pose",
-)
 #: Particles of a replay when the parameters do not set them (the live node's default is
 #: smaller, for real time).
 REPLAY_PARTICLES = 500
@@ -250,12 +254,12 @@ def replay_bag(
     with open_bag(src, salvage=opts.salvage) as reader:
         topics = reader.topics()
         counts = reader.counts()
-        n_poses = counts.get("/object/pose", 0)
+        n_poses = counts.get(OBJECT_POSE, 0)
         if n_poses == 0:
             have = ", ".join(sorted(t for t, n in counts.items() if n)) or "nothing"
             msg = f"{src}: no /object/pose messages to replay (the bag has {have})"
             raise BagError(msg)
-        if counts.get("/scenario", 0) == 0 and not params.get("scenario_file"):
+        if counts.get(SCENARIO, 0) == 0 and not params.get("scenario_file"):
             msg = f"{src}: no /scenario in the bag; pass --scenario-file FILE"
             raise BagError(msg)
         _prepare_out(dst, opts.overwrite)
@@ -266,7 +270,7 @@ def replay_bag(
 
         def sink(topic: str, msg: Any) -> None:
             nonlocal estimates
-            if topic == "/dbcslam/pose":
+            if topic == POSE:
                 stamp = msg.header.stamp
                 current_stamp[0] = int(stamp.sec) * NS + int(stamp.nanosec)
                 estimates += 1
@@ -278,7 +282,7 @@ def replay_bag(
             copied = {
                 name: t
                 for name, t in topics.items()
-                if not name.startswith("/dbcslam/") and name != "/diagnostics"
+                if not name.startswith("/dbcslam/") and name != DIAGNOSTICS
             }
             for t in copied.values():
                 writer.add_topic(t.name, t.msgtype, t.offered_qos or (contract_qos(t.name),))
@@ -299,7 +303,7 @@ def replay_bag(
                 if callback is None:
                     continue
                 callback(obj)
-                if raw.topic != "/object/pose":
+                if raw.topic != OBJECT_POSE:
                     continue
                 filt.process_pending()
                 done += 1
@@ -340,7 +344,7 @@ def replay_bag(
         "warnings": {text: n for text, n in warnings[:10]},
         "params": {k: v for k, v in sorted(filt.params.items())},
     }
-    if counts.get("/dbcslam/pose", 0):
+    if counts.get(POSE, 0):
         metrics["replay"]["recorded_estimates"] = _compare_recorded(src, dst, opts.salvage)
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     return ReplayResult(src, dst, n_poses, estimates, wall, rejected, metrics, plots)
@@ -408,7 +412,7 @@ def _trajectory_messages(traj: Any, t0_ns: int) -> Iterator[tuple[str, Any, int]
     ]
     mu_pair = np.asarray(getattr(traj, "mu_pair", np.full(len(first), np.nan)), np.float64)
     eye = np.eye(4)
-    yield "/scenario", string_cls(data=str(sc.to_yaml())), t0_ns
+    yield SCENARIO, string_cls(data=str(sc.to_yaml())), t0_ns
     for k in range(traj.n_steps):
         stamp = t0_ns + round(float(traj.t[k]) * NS)
         q = np.zeros(3)
@@ -419,7 +423,7 @@ def _trajectory_messages(traj: Any, t0_ns: int) -> Iterator[tuple[str, Any, int]
         u[: traj.u.shape[1]] = traj.u[k]
         if len(sc.joints):
             yield (
-                "/joint_states",
+                JOINT_STATES,
                 joint_cls(
                     header=header_cls(stamp=ns_to_stamp(stamp), frame_id="world"),
                     name=list(sc.joints),
@@ -429,22 +433,22 @@ def _trajectory_messages(traj: Any, t0_ns: int) -> Iterator[tuple[str, Any, int]
                 ),
                 stamp,
             )
-        yield "/object/wrench", wrench_stamped(stamp, float(u[0]), float(u[1]), float(u[2])), stamp
+        yield OBJECT_WRENCH, wrench_stamped(stamp, float(u[0]), float(u[1]), float(u[2])), stamp
         yield (
-            "/object/pose",
+            OBJECT_POSE,
             pose_stamped(stamp, float(obs[0]), float(obs[1]), float(obs[2])),
             stamp,
         )
         yield (
-            "/truth/object/pose",
+            TRUTH_POSE,
             pose_stamped(stamp, float(q[0]), float(q[1]), float(q[2])),
             stamp,
         )
         modes = eye[np.asarray(traj.modes[k], dtype=np.int64)]
-        yield "/truth/contact_modes", float64_multiarray(modes, ("contacts", "modes")), stamp
+        yield TRUTH_CONTACT_MODES, float64_multiarray(modes, ("contacts", "modes")), stamp
         mu = traj.mu[min(k + 1, traj.n_steps - 1)]
         per_pair = np.asarray([mu[c] if c >= 0 else mu_pair[p] for p, c in enumerate(first)])
-        yield "/truth/friction", float64_multiarray(per_pair, ("pairs",)), stamp
+        yield TRUTH_FRICTION, float64_multiarray(per_pair, ("pairs",)), stamp
 
 
 def write_trajectory_bag(traj: Any, path: str | Path, *, t0_ns: int = 0) -> Path:

@@ -42,7 +42,18 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from dbcslam_core.angles import wrap_angle
 from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.contract import (
+    JOINT_STATES,
+    OBJECT_POSE,
+    OBJECT_WRENCH,
+    PUSHER_CONTACT,
+    PUSHER_WRENCH,
+    SCENARIO,
+    TRUTH_POSE,
+    message_type,
+)
 from dbcslam_ros.errors import UsageError
 
 if TYPE_CHECKING:
@@ -54,16 +65,16 @@ if TYPE_CHECKING:
 __all__ = ["COMMAND", "CONTACT_TOPIC", "TOPICS", "make_scenario", "write_push_bag"]
 
 #: Topic of the contact flag (see the module docstring for its layout).
-CONTACT_TOPIC = "/pusher/contact"
+CONTACT_TOPIC = PUSHER_CONTACT
 #: Topics an imported bag holds (``/pusher/wrench`` only with a usable F/T stream).
 TOPICS: tuple[str, ...] = (
-    "/scenario",
-    "/joint_states",
-    "/object/wrench",
-    "/pusher/wrench",
+    SCENARIO,
+    JOINT_STATES,
+    OBJECT_WRENCH,
+    PUSHER_WRENCH,
     CONTACT_TOPIC,
-    "/object/pose",
-    "/truth/object/pose",
+    OBJECT_POSE,
+    TRUTH_POSE,
 )
 
 _DESCRIPTION = """\
@@ -215,16 +226,11 @@ def write_push_bag(
     header_cls = rt.message_class("std_msgs/msg/Header")
     names = list(scenario.joints)
     types = {
-        "/scenario": "std_msgs/msg/String",
-        "/joint_states": "sensor_msgs/msg/JointState",
-        "/object/wrench": "geometry_msgs/msg/WrenchStamped",
-        "/pusher/wrench": "geometry_msgs/msg/WrenchStamped",
-        CONTACT_TOPIC: "std_msgs/msg/Float64MultiArray",
-        "/object/pose": "geometry_msgs/msg/PoseStamped",
-        "/truth/object/pose": "geometry_msgs/msg/PoseStamped",
+        t: "std_msgs/msg/Float64MultiArray" if t == CONTACT_TOPIC else message_type(t)
+        for t in TOPICS
     }
     if series.force is None:
-        del types["/pusher/wrench"]
+        del types[PUSHER_WRENCH]
     created = not (path.exists() or path.is_symlink())
     try:
         with BagWriter(path, overwrite=overwrite, custom_data=_custom_data(series, config)) as bag:
@@ -232,7 +238,7 @@ def write_push_bag(
                 qos = RELIABLE_QOS if topic == CONTACT_TOPIC else contract_qos(topic)
                 bag.add_topic(topic, msgtype, [qos])
             stamps = [int(s) for s in series.stamps_ns]
-            bag.write("/scenario", rt.encode(string_cls(data=scenario.to_yaml())), stamps[0])
+            bag.write(SCENARIO, rt.encode(string_cls(data=scenario.to_yaml())), stamps[0])
             for k, ns in enumerate(stamps):
                 tx, ty = (float(v) for v in series.tip[k])
                 joints = joint_cls(
@@ -242,19 +248,27 @@ def write_push_bag(
                     velocity=[],
                     effort=[],
                 )
-                bag.write("/joint_states", rt.encode(joints), ns)
-                bag.write("/object/wrench", zero_wrench(ns), ns)
+                bag.write(JOINT_STATES, rt.encode(joints), ns)
+                bag.write(OBJECT_WRENCH, zero_wrench(ns), ns)
                 if series.force is not None:
                     fx, fy, tau = (float(v) for v in series.force[k])
-                    bag.write("/pusher/wrench", rt.encode(wrench_stamped(ns, fx, fy, tau)), ns)
+                    bag.write(PUSHER_WRENCH, rt.encode(wrench_stamped(ns, fx, fy, tau)), ns)
                 flag = [[0.0, 1.0]] if series.contact[k] else [[1.0, 0.0]]
                 bag.write(
                     CONTACT_TOPIC, rt.encode(float64_multiarray(flag, ("contacts", "state"))), ns
                 )
                 ox, oy, oyaw = (float(v) for v in series.observed[k])
-                bag.write("/object/pose", rt.encode(pose_stamped(ns, ox, oy, _wrap(oyaw))), ns)
+                bag.write(
+                    OBJECT_POSE,
+                    rt.encode(pose_stamped(ns, ox, oy, float(wrap_angle(oyaw)))),
+                    ns,
+                )
                 x, y, yaw = (float(v) for v in series.pose[k])
-                bag.write("/truth/object/pose", rt.encode(pose_stamped(ns, x, y, _wrap(yaw))), ns)
+                bag.write(
+                    TRUTH_POSE,
+                    rt.encode(pose_stamped(ns, x, y, float(wrap_angle(yaw)))),
+                    ns,
+                )
             return bag.close()
     except BaseException:
         # Never leave a half-written bag behind (a re-run would refuse to overwrite it).
@@ -269,10 +283,6 @@ def zero_wrench(stamp_ns: int) -> bytes:
     from dbcslam_ros.convert import wrench_stamped
 
     return bytes(rt.encode(wrench_stamped(stamp_ns, 0.0, 0.0, 0.0)))
-
-
-def _wrap(angle: float) -> float:
-    return math.remainder(angle, 2.0 * math.pi)
 
 
 def _run(args: argparse.Namespace) -> int:
