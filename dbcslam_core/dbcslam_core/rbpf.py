@@ -580,14 +580,10 @@ class DbcSlamFilter:
         if self._mu_surface is None:
             f = self.model.generalized_force(self.q, self.v, u)
             v_free = self.v + dt * f * self._inv_mass
-        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(
-                self.q, self.v, 1.0, velocity_eps=cfg.support_velocity_eps
+        else:  # support friction linearised at the particle velocity (dynamic or quasi-static)
+            m_eff, v_free_b = self.model.support_terms(
+                self.q, self.v, u, self._mu_surface, velocity_eps=cfg.support_velocity_eps
             )
-            m_eff = (
-                self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
-            )
-            v_free_b = self.model.free_velocity(self.q[:, None], self.v[:, None], u, m_eff)
             v_free = np.einsum("pb,pbv->pv", self.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
