@@ -98,11 +98,14 @@ def _subset(bags: Sequence[Path], shapes: Sequence[str], every: int) -> list[Pat
     return out
 
 
-def _overrides(factor: float) -> tuple[tuple[str, object], ...]:
+def _noise(factor: float) -> tuple[float, ...]:
     from dbcslam_core.rbpf import FilterConfig
 
-    base = FilterConfig.preset("push").process_noise
-    return (("process_noise", tuple(float(factor * x) for x in base)),)
+    return tuple(float(factor * x) for x in FilterConfig.preset("push").process_noise)
+
+
+def _overrides(factor: float) -> tuple[tuple[str, object], ...]:
+    return (("process_noise", _noise(factor)),)
 
 
 def _lme(values: Sequence[float]) -> float:
@@ -146,7 +149,7 @@ def compare_models(
         out[model] = {
             "train_loglik_by_noise_factor": {str(k): round(v, 2) for k, v in train_ll.items()},
             "noise_factor": best,
-            "process_noise": list(_overrides(best)[0][1]),  # type: ignore[arg-type]
+            "process_noise": list(_noise(best)),
             "heldout_loglik_seeds": [round(v, 2) for v in lls],
             "heldout_loglik": round(_lme(lls), 2),
             "heldout_pred_rmse_m": scores[0].pred_rmse,
