@@ -177,3 +177,29 @@ def test_quasi_static_needs_support_friction_and_a_lever_arm() -> None:
     model = PlanarModel(_scenario())
     with pytest.raises(ModelError, match="> 0"):
         model.support_terms(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), np.array([0.0]))
+
+
+def test_support_concentration_is_a_scorable_push_effect() -> None:
+    from dbcslam_core.discrepancy.effects import (
+        FILTER_EFFECTS,
+        Hypothesis,
+        effect_size,
+        effect_spaces,
+    )
+    from dbcslam_core.discrepancy.runs import default_effects
+
+    sc = _scenario()
+    assert "support_concentration" in FILTER_EFFECTS
+    assert "support_concentration" in default_effects(sc)
+    (space,) = effect_spaces(sc, "support_concentration")
+    assert (space.lo, space.hi, space.default) == (0.0, 0.95, 0.0)
+    assert space.at_bound(0.95) and not space.at_bound(0.3)
+    assert effect_size("support_concentration", {"centre_fraction": 0.05}, sc) < 1.0
+    _, exts, _, _ = Hypothesis.make(
+        "support_concentration", {"centre_fraction": 0.3}
+    ).filter_setup(sc)
+    assert PlanarModel(sc, exts).limit_surface_c == pytest.approx(
+        0.7 * PlanarModel(sc).limit_surface_c
+    )
+    with pytest.raises(ModelError, match="centre_fraction"):
+        ModelExtension.make("support_concentration", centre_fraction=1.0)
