@@ -193,6 +193,7 @@ def run_study(cfg: DiscrepancyStudy, say: Callable[[str], None]) -> dict[str, An
             "n_heldout": len(next(iter(sel.values()))[1]),
             "models": compare_models(runs, cfg, say),
         }
+        _write(cfg.out, summary, split, block)
         if cfg.analyse:
             block["analysis"] = {}
             for m, (t, h) in sel.items():
@@ -214,10 +215,16 @@ def run_study(cfg: DiscrepancyStudy, say: Callable[[str], None]) -> dict[str, An
                     filter_particles=cfg.filter_particles,
                 )
                 block["analysis"][m] = _analysis_row(data)
-        summary["splits"][split] = block
-        (cfg.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        (cfg.out / "summary.md").write_text(markdown(summary))
+                _write(cfg.out, summary, split, block)
+        _write(cfg.out, summary, split, block)
     return summary
+
+
+def _write(out: Path, summary: dict[str, Any], split: str, block: dict[str, Any]) -> None:
+    """Write summary.json / summary.md with the split's block so far (after every step)."""
+    summary["splits"][split] = block
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.md").write_text(markdown(summary))
 
 
 def _settings(cfg: DiscrepancyStudy) -> dict[str, Any]:
