@@ -52,7 +52,8 @@ class DiscrepancyStudy:
     """Settings: data root, output folder, work folder for the bags, scoring particles,
     filter seeds (first: common random numbers for the fits), noise factors searched,
     every-n-th push kept, splits and models run, whether the full analysis runs (else
-    only the model comparison), particles of the tracking replays (0: off)."""
+    only the model comparison), particles of the tracking replays (0: off), candidate
+    effects of the analysis (None: the push defaults, `runs.default_effects`)."""
 
     data: Path = DEFAULT_DATA
     out: Path = Path("out/mitpush_discrepancy")
@@ -65,6 +66,7 @@ class DiscrepancyStudy:
     models: tuple[str, ...] = MODELS
     analyse: bool = True
     filter_particles: int = 0
+    effects: tuple[str, ...] | None = None
 
 
 def _shape(bag: Path) -> str:
@@ -203,6 +205,7 @@ def run_study(cfg: DiscrepancyStudy, say: Callable[[str], None]) -> dict[str, An
                     seed=cfg.seeds[0],
                     noise_seeds=tuple(cfg.seeds[1:]),
                     filter_overrides=_overrides(factor),
+                    effects=cfg.effects,
                 )
                 say(f"  discrepancy analysis, {m} model (noise x{factor:g})")
                 _, data = run_discrepancy(
@@ -234,6 +237,7 @@ def _settings(cfg: DiscrepancyStudy) -> dict[str, Any]:
         "noise_factors": list(cfg.noise_factors),
         "every": cfg.every,
         "models": list(cfg.models),
+        "effects": None if cfg.effects is None else list(cfg.effects),
     }
 
 
@@ -326,6 +330,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--every", type=int, default=1, help="keep every N-th push per shape (1)")
     p.add_argument("--splits", nargs="+", default=["A", "B"], choices=sorted(SPLITS))
     p.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
+    p.add_argument(
+        "--effects", nargs="+", default=None, help="candidate effects (default: the push set)"
+    )
     p.add_argument("--compare-only", action="store_true", help="skip the discrepancy analysis")
     p.add_argument(
         "--filter",
@@ -355,6 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models=tuple(args.models),
         analyse=not args.compare_only,
         filter_particles=args.filter,
+        effects=None if args.effects is None else tuple(args.effects),
     )
     t0 = time.monotonic()
     run_study(cfg, lambda s: print(s, file=sys.stderr, flush=True))

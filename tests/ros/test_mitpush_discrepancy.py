@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros import mitpush_discrepancy as md
+import dbcslam_ros.mitpush_discrepancy as md
 
 
 def _bag(shape: str, i: int) -> Path:
