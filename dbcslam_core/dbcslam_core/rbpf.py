@@ -799,15 +799,13 @@ class DbcSlamFilter:
         if self._mu_surface is None:
             f = self.model.generalized_force(ps.q, ps.v, inp.u)
             v_free = ps.v + dt * f * self._inv_mass
-        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
-            mu_s = (
-                self._mu_surface[None, :]
-                if self._sub_b is None
-                else self._mu_surface[self._sub_b][:, None]
+        else:  # support friction linearised at the particle velocity (dynamic or quasi-static)
+            mu_s = (  # (B,) or per bank copy (P B, 1)
+                self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            m_eff = self.model.mass_matrix + dt * mu_s[:, :, None, None] * k1[:, None]
-            v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
+            m_eff, v_free_b = self.model.support_terms(
+                ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
+            )
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env

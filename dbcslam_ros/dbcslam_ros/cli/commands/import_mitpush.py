@@ -156,6 +156,7 @@ def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
         position_noise=config.position_std,
         yaw_noise=config.yaw_std,
         support_pair="surface",
+        model=config.push_model,
     )
     cands = (tuple(config.pusher_candidates), tuple(config.surface_candidates))
     friction = FrictionSpec(
@@ -301,6 +302,7 @@ def _run(args: argparse.Namespace) -> int:
             thickness=args.thickness,
             mass=args.mass,
             inertia=args.inertia,
+            **({} if args.push_model is None else {"push_model": args.push_model}),
         )
     except MitPushError as err:
         raise UsageError(str(err)) from err
@@ -453,6 +455,14 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         default=[0.1, 0.2, 0.3],
         metavar="MU",
         help="candidate object-surface friction coefficients (default 0.1 0.2 0.3)",
+    )
+    parser.add_argument(
+        "--push-model",
+        choices=("dynamic", "quasi_static"),
+        default=None,
+        help="the scenario's push model (surface.model): dynamic (rigid body with inertia and "
+        "Coulomb support friction) or quasi_static (limit surface, no coasting); default: "
+        "dbcslam_ros.mitpush.DEFAULT_PUSH_MODEL",
     )
     parser.add_argument(
         "--shapes",
