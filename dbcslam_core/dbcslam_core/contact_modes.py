@@ -807,6 +807,72 @@ class Hypotheses:
         return np.asarray(self.valid.sum(axis=1), dtype=np.int64)
 
 
+def _radix(n_live_max: list[int], max_tuples: int) -> tuple[int, ...]:
+    """Live modes per contact over all particles, reduced (largest first) until the number
+    of joint tuples is at most max_tuples."""
+    radix_t = list(n_live_max)
+    while math.prod(radix_t) > max_tuples:
+        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    return tuple(radix_t)
+
+
+@functools.lru_cache(maxsize=64)
+def _layout_arrays(layout: ContactLayout) -> tuple[IntArray, IntArray, IntArray]:
+    """`_layout_rules` as int arrays for the compiled kernel (crowded groups padded -1)."""
+    crowded, forbidden, same = _layout_rules(layout)
+    width = max((len(g) for g in crowded), default=0)
+    crowd = np.full((len(crowded), width), -1, dtype=np.int64)
+    for i, g in enumerate(crowded):
+        crowd[i, : len(g)] = g
+    out = (
+        crowd,
+        np.asarray(forbidden, dtype=np.int64).reshape(-1, 2),
+        np.asarray(same, dtype=np.int64).reshape(-1, 2),
+    )
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def _enumerate_compiled(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> Hypotheses:
+    """`enumerate_hypotheses` through `kernels.enumerate_tuples` (same rules)."""
+    n_p, n_c, _ = mg.shape
+    order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4), as the numpy path
+    sp = -np.sort(-mg, axis=-1)
+    live = sp >= threshold
+    live[..., 0] = True
+    with np.errstate(divide="ignore"):
+        lsp = np.where(live, np.log(sp), -np.inf)
+    radix_t = _radix(sum_last(live).max(axis=0).tolist(), max_tuples)
+    n_t = math.prod(radix_t)
+    pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
+    if layout is None:
+        empty = np.zeros((0, 2), dtype=np.int64)
+        rules = (np.zeros((0, 0), dtype=np.int64), empty, empty)
+    else:
+        rules = _layout_arrays(layout)
+    modes, logp, valid = kernels.enumerate_tuples(
+        order,
+        lsp,
+        threshold=threshold,
+        ranks=_mixed_radix(radix_t),
+        n_keep=min(max_hypotheses, pre_k),
+        pre_k=pre_k,
+        phi=None if (phi is None or layout is None) else np.asarray(phi, dtype=np.float64),
+        rules=rules,
+        both_tolerance=2e-3,
+    )
+    return Hypotheses(modes=modes, log_prior=logp, valid=valid)
+
+
 def enumerate_hypotheses(
     marginals: npt.ArrayLike,
     threshold: float,
@@ -815,6 +881,7 @@ def enumerate_hypotheses(
     layout: ContactLayout | None = None,
     phi: npt.ArrayLike | None = None,
     max_tuples: int = 4096,
+    compiled: bool | None = None,
 ) -> Hypotheses:
     """Enumerate the live joint mode hypotheses of every particle at once (no Python loop
     over particles).
@@ -824,20 +891,28 @@ def enumerate_hypotheses(
     product of live modes, ranked by log prior (sum of log marginals); geometrically impossible
     ones (`geometric_feasible`) are removed, joint hypotheses whose normalised probability is
     below threshold are pruned (the best is always kept), and at most max_hypotheses are kept.
+
+    compiled: use `kernels.enumerate_tuples` (None: when numba is available); the same
+    hypotheses as the numpy path, except the order among exactly tied log priors at the
+    boundary of a truncated enumeration (numpy's argpartition leaves it unspecified).
     """
     mg = np.asarray(marginals, dtype=np.float64)
     n_p, n_c, _ = mg.shape
+    if compiled is None:
+        compiled = kernels.AVAILABLE
+    if compiled:
+        return _enumerate_compiled(
+            mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
+        )
     order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4)
     sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
     live = sp >= threshold
     live[..., 0] = True
     n_live = sum_last(live)  # (P, C)
     radix = n_live.max(axis=0)  # (C,)
-    radix_t = radix.tolist()
-    while math.prod(radix_t) > max_tuples:
-        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    radix_t = _radix(radix.tolist(), max_tuples)
     n_t = math.prod(radix_t)
-    ranks = _mixed_radix(tuple(radix_t))
+    ranks = _mixed_radix(radix_t)
     with np.errstate(divide="ignore"):
         lsp = np.log(sp)  # (P, C, 4)
     lsp = np.where(live, lsp, -np.inf)

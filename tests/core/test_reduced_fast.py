@@ -21,6 +21,7 @@ from dbcslam_core.contact_modes import (
     ContactLayout,
     Mode,
     _solve_small,
+    enumerate_hypotheses,
     geometric_feasible,
     solve_reduced,
 )
@@ -320,3 +321,45 @@ def test_compiled_proposal_equals_numpy_proposal(seed: int, n: int) -> None:
     ]
     for a, b in zip(out[0], out[1], strict=True):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    threshold=st.sampled_from([1e-3, 1e-2, 0.05]),
+    max_h=st.sampled_from([4, 8, 32]),
+    n_p=st.sampled_from([3, 40]),
+)
+def test_compiled_enumeration_equals_numpy(
+    seed: int, threshold: float, max_h: int, n_p: int
+) -> None:
+    """The compiled hypothesis enumeration keeps the same hypotheses in the same order as
+    the numpy path (continuous random marginals: no exact ties), with the gripper's
+    geometric exclusions and gaps."""
+    rng = np.random.default_rng(seed)
+    layout = ContactLayout(
+        feature_vertex=tuple(c.vertex for c in GRIPPER.potential_contacts),
+        obstacle=tuple(c.obstacle for c in GRIPPER.potential_contacts),
+        n_vertices=len(GRIPPER.body.vertices),
+    )
+    c = len(GRIPPER.potential_contacts)
+    mg = rng.dirichlet(np.full(4, 0.3), size=(n_p, c))
+    phi = rng.uniform(-1e-3, 3e-3, size=(n_p, c))
+    out = [
+        enumerate_hypotheses(mg, threshold, max_h, layout=layout, phi=phi, compiled=flag)
+        for flag in (False, True)
+    ]
+    np.testing.assert_array_equal(out[1].valid, out[0].valid)
+    np.testing.assert_array_equal(out[1].modes[out[0].valid], out[0].modes[out[0].valid])
+    np.testing.assert_array_equal(out[1].log_prior, out[0].log_prior)
+
+
+def test_compiled_enumeration_truncated_path_keeps_the_most_probable() -> None:
+    """Many particles and contacts (the argpartition pre-selection of the numpy path): the
+    same hypotheses when there are no ties."""
+    rng = np.random.default_rng(5)
+    mg = rng.dirichlet(np.full(4, 1.0), size=(800, 6))
+    a, b = (enumerate_hypotheses(mg, 1e-3, 32, compiled=flag) for flag in (False, True))
+    np.testing.assert_array_equal(b.valid, a.valid)
+    np.testing.assert_array_equal(b.modes[a.valid], a.modes[a.valid])
+    np.testing.assert_array_equal(b.log_prior, a.log_prior)
