@@ -265,7 +265,6 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
-                "friction_bank": True,
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -273,6 +272,10 @@ class FilterConfig:
                 # contacts are estimate errors and close slowly (`transition.contact_gap`)
                 base["gap_closure"] = 0.05
                 base["gap_tolerance"] = 1e-3
+                # one state copy per friction candidate (the gripper's belief collapsed at
+                # small particle counts); not for push: on bags/push the bank ended
+                # confidently on a wrong pusher coefficient (0.1 / 0.3 at 500 particles)
+                base["friction_bank"] = True
             if kind == "push":
                 # constant-speed pusher: a stiff joint smoother (the pusher's position and
                 # velocity enter sticking impulses and the predicted pusher force at 1/dt)

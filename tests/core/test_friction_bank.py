@@ -35,9 +35,9 @@ def _run(
     return out, filt
 
 
-def test_bank_is_the_default_of_time_invariant_presets_only() -> None:
+def test_bank_is_the_default_of_the_gripper_preset_only() -> None:
     assert FilterConfig.preset("gripper").friction_bank
-    assert FilterConfig.preset("push").friction_bank
+    assert not FilterConfig.preset("push").friction_bank
     assert not FilterConfig.preset("edge").friction_bank
     with pytest.raises(ModelError, match="friction_bank needs the time-invariant"):
         FilterConfig.preset("edge", friction_bank=True)
