@@ -10,6 +10,8 @@ by construction: their impulses only agree to ~cond * eps, their velocities clos
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -84,6 +86,22 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return np.asarray((rows <= 3) & geometric_feasible(layout, modes, phi))
 
 
+def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
+    """Two reduced solutions agree on the elements ok (impulse scale lam, N s)."""
+    assert ok.any()
+    for f in ("v_next", "response", "gap_rate", "vt"):
+        np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
+    for f in ("ln", "lt"):
+        err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
+        assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
+    np.testing.assert_allclose(new.score[ok], ref.score[ok], rtol=1e-8, atol=1e-9)
+    if ref.impulse_response is not None:
+        assert new.impulse_response is not None
+        np.testing.assert_allclose(
+            new.impulse_response[ok], ref.impulse_response[ok], rtol=1e-7, atol=1e-7
+        )
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.25, 0.5]))
@@ -99,18 +117,7 @@ def test_solve_reduced_matches_padded_reference(backend: str, seed: int, p_conta
         # G M^-1 F^T ~ singular) give impulses of ~1e9 N s and are round-off dominated in
         # both implementations (the filter's proposal rejects them: v' ~ 1e3 m/s)
         ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
-        for f in ("v_next", "response", "gap_rate", "vt"):
-            np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
-        for f in ("ln", "lt"):
-            err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
-            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
-        np.testing.assert_allclose(new.score[ok], ref.score[ok], rtol=1e-8, atol=1e-9)
-        assert ok.any()
-        if sens:
-            assert new.impulse_response is not None and ref.impulse_response is not None
-            np.testing.assert_allclose(
-                new.impulse_response[ok], ref.impulse_response[ok], rtol=1e-7, atol=1e-7
-            )
+        _assert_agree(new, ref, ok, lam)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -168,18 +175,7 @@ def test_compiled_backend_equals_numpy_backend(seed: int, p_contact: float) -> N
         )
         lam = np.abs(a.ln).max(-1) + np.abs(a.lt).max(-1)
         ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
-        assert ok.any()
-        for f in ("v_next", "response", "gap_rate", "vt"):
-            np.testing.assert_allclose(getattr(b, f)[ok], getattr(a, f)[ok], atol=1e-9)
-        for f in ("ln", "lt"):
-            err = np.abs(getattr(a, f) - getattr(b, f)).max(-1)
-            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
-        np.testing.assert_allclose(b.score[ok], a.score[ok], rtol=1e-8, atol=1e-9)
-        if sens:
-            assert a.impulse_response is not None and b.impulse_response is not None
-            np.testing.assert_allclose(
-                b.impulse_response[ok], a.impulse_response[ok], rtol=1e-7, atol=1e-7
-            )
+        _assert_agree(b, a, ok, lam)
 
 
 @pytest.mark.parametrize("sens", [False, True])
