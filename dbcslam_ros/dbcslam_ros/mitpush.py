@@ -7,7 +7,7 @@ Vicon-tracked object frame (x, y, yaw) and the F/T reading (fx, fy, tau_z). File
 ``motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T`` (:func:`parse_push_name`).
 
 What this module found in the 50 ABS training pushes and applies (numbers from
-``python -m dbcslam_ros.push_analysis``; see the report in that module):
+``python -m dbcslam_research.push_analysis``; see the report in that module):
 
 * **Shapes.** Any shape with an outline ``shapes/<shape>_ext.npy`` (11 in the dataset; the
   training pushes use 4). Mass and inertia about the centroid are those of a uniform plate

@@ -478,7 +478,7 @@ def test_signed_distance_of_outline() -> None:
 
 # ------------------------------------------------------------------------------ analysis
 def test_friction_radius_of_square() -> None:
-    from dbcslam_ros.push_analysis import friction_radius
+    from dbcslam_research.push_analysis import friction_radius
 
     square = mp.load_outline("rect1", DATA / "shapes").vertices
     side = 0.09
@@ -487,7 +487,7 @@ def test_friction_radius_of_square() -> None:
 
 
 def test_quasi_static_twist_directions() -> None:
-    from dbcslam_ros.push_analysis import _twist
+    from dbcslam_research.push_analysis import _twist
 
     c = 0.03
     # Centred push on the -x side, straight in: pure translation along +x.
@@ -505,7 +505,7 @@ def test_quasi_static_twist_directions() -> None:
 
 
 def test_quasi_static_replay_on_real_push() -> None:
-    from dbcslam_ros.push_analysis import analyse_motion, friction_radius
+    from dbcslam_research.push_analysis import analyse_motion, friction_radius
 
     path = next(f for f in FILES if "hex" in f.name)
     raw = mp.load_push(path)

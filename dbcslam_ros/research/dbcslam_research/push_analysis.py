@@ -1,6 +1,6 @@
 """How the MIT pushes really move: alignment fit, F/T findings, quasi-static prediction.
 
-Run ``python -m dbcslam_ros.push_analysis [DATA_DIR]`` (default: ../shared/data/mit-push,
+Run ``python -m dbcslam_research.push_analysis [DATA_DIR]`` (default: ../shared/data/mit-push,
 relative to the working directory; reads ``abs/train/*.h5`` and ``shapes/``). It prints, per shape:
 
 1. Alignment: the first-contact location error and tip-outline gap with the importer's

@@ -1,6 +1,6 @@
 """The filter on measured MIT pushes: import, replay, evaluate, tabulate (issue "Measured data").
 
-``python -m dbcslam_ros.mitpush_eval [--data DIR] [--out DIR] [--particles N] [--jobs 2]``
+``python -m dbcslam_research.mitpush_eval [--data DIR] [--out DIR] [--particles N] [--jobs 2]``
 
 1. Imports every push file of the data (``--data``: the dataset root, whose ``abs/train`` split
    is used when present, or any directory/file of ``.h5`` pushes; default the shared copy
@@ -701,7 +701,7 @@ def _replay_all(pushes: list[dict[str, Any]], params: dict[str, Any], opts: Eval
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.mitpush_eval",
+        prog="python -m dbcslam_research.mitpush_eval",
         description=(__doc__ or "").split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -791,7 +791,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             None if args.surface_candidates is None else tuple(args.surface_candidates)
         ),
     )
-    command = "python -m dbcslam_ros.mitpush_eval " + " ".join(
+    command = "python -m dbcslam_research.mitpush_eval " + " ".join(
         sys.argv[1:] if argv is None else list(argv)
     )
     try:

@@ -1,6 +1,6 @@
 """Live benchmark: the simulator node and the filter node as two processes, in real time.
 
-Run: ``python -m dbcslam_ros.bench_live [--scenarios edge gripper push] [--particles N ...]
+Run: ``python -m dbcslam_research.bench_live [--scenarios edge gripper push] [--particles N ...]
 [--duration S] [--engine pybullet|core] [--offline | --no-live] [--no-pusher-wrench]
 [--out DIR] [--logs DIR]`` (one run per scenario and particle count; -1 = the filter node's
 live default for the kind).
@@ -376,7 +376,7 @@ def table(results: Sequence[LiveResult]) -> str:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.bench_live",
+        prog="python -m dbcslam_research.bench_live",
         description="Live benchmark: simulator node + filter node in real time on loopback.",
     )
     p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
@@ -455,7 +455,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = table(results)
     print(text, end="")
     args.out.mkdir(parents=True, exist_ok=True)
-    command = "python -m dbcslam_ros.bench_live " + " ".join(
+    command = "python -m dbcslam_research.bench_live " + " ".join(
         sys.argv[1:] if argv is None else argv
     )
     (args.out / "bench_live.md").write_text(

@@ -18,7 +18,7 @@ and (`dbcslam_core.quasi_static`, the motion cone on an ellipsoidal limit surfac
 * ``quasi-static, fitted``: c = k * c_uniform and mu_c fitted on the OTHER shapes only
   (leave one shape out over the training shapes) by minimising their NMSE on a grid.
 
-Run: ``python -m dbcslam_ros.push_nmse [DATA] --out DIR`` (DATA: the dataset folder with
+Run: ``python -m dbcslam_research.push_nmse [DATA] --out DIR`` (DATA: the dataset folder with
 ``abs/train`` and ``shapes``, default ``../shared/data/mit-push``); writes ``push_nmse.md``,
 ``push_nmse.json`` and ``push_nmse.png`` (predicted vs measured final displacement).
 """
