@@ -36,9 +36,9 @@ setup(
     entry_points={
         "console_scripts": [
             "dbcslam = dbcslam_ros.cli:main",
-            "filter_node = dbcslam_ros.filter_node:main",
-            "talker = dbcslam_ros.demo_nodes:talker_main",
-            "listener = dbcslam_ros.demo_nodes:listener_main",
+            "filter_node = dbcslam_ros.node.filter_node:main",
+            "talker = dbcslam_ros.node.demo_nodes:talker_main",
+            "listener = dbcslam_ros.node.demo_nodes:listener_main",
         ],
     },
 )

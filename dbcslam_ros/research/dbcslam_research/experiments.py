@@ -292,7 +292,7 @@ def save_figures(
     """Figures of the representative seed (median DBC-SLAM position RMSE) per scenario:
     edge -> ``save_edge_figures``, others -> ``save_gripper_figures``; file names start with
     ``{prefix}{scenario}`` (e.g. prefix ``sim_`` -> ``sim_push_com.png``)."""
-    from dbcslam_ros.plotting import save_edge_figures, save_gripper_figures
+    from dbcslam_ros.offline.plotting import save_edge_figures, save_gripper_figures
 
     paths: list[Path] = []
     for scen in scenarios:

@@ -496,7 +496,7 @@ def write_outputs(
     }
     write_json(paths[1], payload)
     if figures:
-        from dbcslam_ros.plotting import save_edge_figures, save_gripper_figures
+        from dbcslam_ros.offline.plotting import save_edge_figures, save_gripper_figures
 
         for scen in cfg.scenarios:
             seed = results.representative_seed(scen)
@@ -530,7 +530,7 @@ def save_push_figures(trace: RunTrace, out_dir: Path, prefix: str = "sim_push") 
     ``{prefix}_contact.png`` (P(pusher contact) and P(sticking | contact), truth shaded),
     ``{prefix}_friction.png`` (pusher-pair friction posterior) and ``{prefix}_overview.png``.
     """
-    from dbcslam_ros.plotting import (
+    from dbcslam_ros.offline.plotting import (
         plot_contact_probability,
         plot_friction_posterior,
         plot_stick_probability,

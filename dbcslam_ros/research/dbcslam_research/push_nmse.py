@@ -38,7 +38,7 @@ import numpy.typing as npt
 from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.quasi_static import limit_surface_c, rollout_push
 from dbcslam_core.scenario import push_scenario
-from dbcslam_ros.mitpush import (
+from dbcslam_ros.importers.mitpush import (
     PUSHER_RADIUS,
     ImportConfig,
     load_outline,
