@@ -1,12 +1,15 @@
 """Polygons in the plane: the planar cross product, area, centroid and polar moment of inertia
-of a uniform polygon (SI units; vertices as an (n >= 3, 2) array in m).
+of a uniform polygon, the strictly convex hull (SI units; vertices as an (n >= 3, 2) array
+in m).
 
 Needs nothing but numpy, so both `scenario` (default inertia of a pushed outline) and
-`geometry` / `mass_properties` import it without importing each other.
+`geometry` / `mass_properties` import it without importing each other; the MIT importer and
+the simulator take their convex hull from here.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -14,7 +17,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import ModelError
 
-__all__ = ["as_polygon", "cross2", "polygon_area", "polygon_centroid", "polygon_inertia"]
+__all__ = [
+    "as_polygon",
+    "convex_hull",
+    "cross2",
+    "polygon_area",
+    "polygon_centroid",
+    "polygon_inertia",
+]
 
 F64 = NDArray[np.float64]
 
@@ -68,3 +78,27 @@ def polygon_inertia(
     a = 0.5 * np.sum(cr)
     j = np.sum(cr * (np.sum(v * v, 1) + np.sum(v * w, 1) + np.sum(w * w, 1))) / 12.0
     return float(mass * j / a)
+
+
+def convex_hull(points: ArrayLike) -> F64:
+    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
+    pts = sorted({(float(x), float(y)) for x, y in np.asarray(points, dtype=np.float64)})
+    if len(pts) < 3:
+        return np.asarray(pts, dtype=np.float64)
+    scale = max(math.hypot(x, y) for x, y in pts)
+    tol = 1e-10 * scale * scale
+
+    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple[float, float]] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= tol:
+            lower.pop()
+        lower.append(p)
+    upper: list[tuple[float, float]] = []
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= tol:
+            upper.pop()
+        upper.append(p)
+    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)

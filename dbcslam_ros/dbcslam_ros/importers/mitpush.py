@@ -87,6 +87,7 @@ from dbcslam_core.mass_properties import (
     PlateProperties,
     plate_properties,
 )
+from dbcslam_core.polygon import convex_hull
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -388,28 +389,6 @@ def find_shapes_dir(h5_path: str | Path) -> Path | None:
         if cand.is_dir():
             return cand
     return None
-
-
-def convex_hull(points: FloatArray) -> FloatArray:
-    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
-    pts = sorted({(float(x), float(y)) for x, y in points})
-    scale = max(math.hypot(x, y) for x, y in pts)
-    tol = 1e-10 * scale * scale
-
-    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple[float, float]] = []
-    for q in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= tol:
-            lower.pop()
-        lower.append(q)
-    upper: list[tuple[float, float]] = []
-    for q in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], q) <= tol:
-            upper.pop()
-        upper.append(q)
-    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
 def _area_centroid(v: FloatArray) -> tuple[float, float, float]:
