@@ -17,11 +17,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core import kernels
 from dbcslam_core.errors import SolverError
 
 __all__ = [
+    "DEFAULT_BACKEND",
     "MODE_NAMES",
     "N_MODES",
+    "REDUCED_BACKENDS",
     "ContactLayout",
     "Hypotheses",
     "Mode",
@@ -133,6 +136,7 @@ def solve_reduced(
     groups: npt.ArrayLike | None = None,
     mass: npt.ArrayLike | None = None,
     impulse_sensitivity: bool = False,
+    backend: str | None = None,
 ) -> ReducedSolution:
     """Solve the reduced (mode-fixed) time-stepping dynamics for all assignments at once.
 
@@ -163,6 +167,10 @@ def solve_reduced(
 
     impulse_sensitivity: also return d (ln, lt) / d v_free (`ReducedSolution.impulse_response`),
     e.g. to propagate force process noise into a predicted contact force.
+
+    backend: key of REDUCED_BACKENDS: `compiled` (`kernels`, numba; the default when
+    numba imports) or `numpy` (batched array operations; the reference and the fallback).
+    None = `DEFAULT_BACKEND`. Both give the same results to round-off.
     """
     sc = scales or ViolationScales()
     md = np.asarray(modes, dtype=np.int64)
@@ -199,6 +207,26 @@ def solve_reduced(
             x = np.broadcast_to(x, (*lead_g, *tail))
         return x.reshape(n_g, *tail)
 
+    if _use_compiled(backend):
+        return _solve_compiled(
+            md,
+            vf,
+            im=im,
+            jn_a=jn_a,
+            jt_a=jt_a,
+            phi_a=phi_a,
+            vne=vne,
+            vte=vte,
+            mu_a=mu_a,
+            ms=ms,
+            lead=lead,
+            lead_g=lead_g,
+            dt=dt,
+            sc=sc,
+            eps_rel=eps_rel,
+            groups=groups,
+            sensitivity=impulse_sensitivity,
+        )
     # Free-motion contact velocities (independent of the assignment).
     an = (jn_a @ vf[..., None])[..., 0] - vne + phi_a / dt
     at = (jt_a @ vf[..., None])[..., 0] - vte
@@ -278,6 +306,99 @@ def solve_reduced(
         impulse_response=None
         if imp_resp is None
         else np.asarray(imp_resp.reshape(*lead, 2, n_c, nv), dtype=np.float64),
+    )
+
+
+REDUCED_BACKENDS: dict[str, str] = {
+    "compiled": "one compiled loop over the systems (dbcslam_core.kernels, numba)",
+    "numpy": "batched numpy array operations (reference; no compiler needed)",
+}
+DEFAULT_BACKEND: str = "compiled" if kernels.AVAILABLE else "numpy"
+
+
+def _use_compiled(backend: str | None) -> bool:
+    name = DEFAULT_BACKEND if backend is None else backend
+    if name not in REDUCED_BACKENDS:
+        msg = f"reduced-dynamics backend must be one of {sorted(REDUCED_BACKENDS)}, got {name!r}"
+        raise SolverError(msg)
+    if name == "compiled" and not kernels.AVAILABLE:
+        msg = "reduced-dynamics backend 'compiled' needs numba, which is not installed"
+        raise SolverError(msg)
+    return name == "compiled"
+
+
+def _solve_compiled(
+    md: IntArray,
+    vf: FloatArray,
+    *,
+    im: FloatArray,
+    jn_a: FloatArray,
+    jt_a: FloatArray,
+    phi_a: FloatArray,
+    vne: FloatArray,
+    vte: FloatArray,
+    mu_a: FloatArray,
+    ms: FloatArray | None,
+    lead: tuple[int, ...],
+    lead_g: tuple[int, ...],
+    dt: float,
+    sc: ViolationScales,
+    eps_rel: float,
+    groups: npt.ArrayLike | None,
+    sensitivity: bool,
+) -> ReducedSolution:
+    """`solve_reduced` through the compiled kernel: geometry elements flattened to (G, ...)
+    contiguous arrays, lead elements to (geometry index, mu row) pairs."""
+    n_c = md.shape[-1]
+    nv = vf.shape[-1]
+    n_g = math.prod(lead_g)
+
+    def gflat(x: npt.NDArray[Any], tail: tuple[int, ...]) -> npt.NDArray[Any]:
+        if x.shape[: x.ndim - len(tail)] != lead_g or x.shape[x.ndim - len(tail) :] != tail:
+            x = np.broadcast_to(x, (*lead_g, *tail))
+        return np.ascontiguousarray(x.reshape(n_g, *tail))
+
+    gi = np.arange(n_g, dtype=np.int64)
+    if lead != lead_g:
+        pad = (1,) * (len(lead) - len(lead_g))
+        gi = np.ascontiguousarray(np.broadcast_to(gi.reshape(pad + lead_g), lead).reshape(-1))
+    mu_u, ui = _mu_rows(mu_a, lead, n_c)
+    if groups is None:
+        group = np.arange(n_c, dtype=np.int64)
+    else:
+        group = np.unique(np.asarray(groups, dtype=np.int64).reshape(-1), return_inverse=True)[1]
+    out, n_bad = kernels.reduced_dynamics(
+        gflat(md, (n_c,)),
+        gflat(vf, (nv,)),
+        jn=gflat(jn_a, (n_c, nv)),
+        jt=gflat(jt_a, (n_c, nv)),
+        phi=gflat(phi_a, (n_c,)),
+        vne=gflat(vne, (n_c,)),
+        vte=gflat(vte, (n_c,)),
+        minv=gflat(im, (nv,)),
+        mass=None if ms is None else gflat(ms, (nv, nv)),
+        mu_rows=np.ascontiguousarray(mu_u),
+        gi=gi,
+        ui=np.ascontiguousarray(ui, dtype=np.int64),
+        group=np.ascontiguousarray(group, dtype=np.int64),
+        dt=dt,
+        eps_rel=eps_rel,
+        scales=(sc.impulse, sc.velocity, sc.impulse_floor),
+        sensitivity=sensitivity,
+    )
+    if n_bad or not np.isfinite(out["v_next"]).all():
+        msg = f"reduced dynamics system is singular for {max(n_bad, 1)} of {gi.size} assignments"
+        raise SolverError(msg)
+    ir = out["impulse_response"]
+    return ReducedSolution(
+        v_next=out["v_next"].reshape(*lead, nv),
+        ln=out["ln"].reshape(*lead, n_c),
+        lt=out["lt"].reshape(*lead, n_c),
+        gap_rate=out["gap_rate"].reshape(*lead, n_c),
+        vt=out["vt"].reshape(*lead, n_c),
+        score=out["score"].reshape(lead),
+        response=out["response"].reshape(*lead, nv, nv),
+        impulse_response=ir.reshape(*lead, 2, n_c, nv) if sensitivity else None,
     )
 
 
@@ -441,12 +562,16 @@ def _solve_small(amat: FloatArray, rhs: FloatArray) -> FloatArray:
     if k == 1:
         x = rhs / amat
     elif k == 2:
-        a = amat[:, 0, 0, None]
-        b = amat[:, 0, 1, None]
-        c = amat[:, 1, 0, None]
-        d = amat[:, 1, 1, None]
-        r0 = rhs[:, 0]
-        r1 = rhs[:, 1]
+        # scaled by the largest entry of each matrix: the determinant of tiny (or huge)
+        # entries would underflow (overflow) although the system is well conditioned
+        s = np.abs(amat).max(axis=(1, 2))[:, None]
+        s = np.where(s > 0.0, s, 1.0)
+        a = amat[:, 0, 0, None] / s
+        b = amat[:, 0, 1, None] / s
+        c = amat[:, 1, 0, None] / s
+        d = amat[:, 1, 1, None] / s
+        r0 = rhs[:, 0] / s
+        r1 = rhs[:, 1] / s
         det = a * d - b * c  # zero only for singular systems: caught below (non-finite)
         x = np.empty_like(rhs)
         x[:, 0] = (d * r0 - b * r1) / det
@@ -682,6 +807,72 @@ class Hypotheses:
         return np.asarray(self.valid.sum(axis=1), dtype=np.int64)
 
 
+def _radix(n_live_max: list[int], max_tuples: int) -> tuple[int, ...]:
+    """Live modes per contact over all particles, reduced (largest first) until the number
+    of joint tuples is at most max_tuples."""
+    radix_t = list(n_live_max)
+    while math.prod(radix_t) > max_tuples:
+        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    return tuple(radix_t)
+
+
+@functools.lru_cache(maxsize=64)
+def _layout_arrays(layout: ContactLayout) -> tuple[IntArray, IntArray, IntArray]:
+    """`_layout_rules` as int arrays for the compiled kernel (crowded groups padded -1)."""
+    crowded, forbidden, same = _layout_rules(layout)
+    width = max((len(g) for g in crowded), default=0)
+    crowd = np.full((len(crowded), width), -1, dtype=np.int64)
+    for i, g in enumerate(crowded):
+        crowd[i, : len(g)] = g
+    out = (
+        crowd,
+        np.asarray(forbidden, dtype=np.int64).reshape(-1, 2),
+        np.asarray(same, dtype=np.int64).reshape(-1, 2),
+    )
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def _enumerate_compiled(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> Hypotheses:
+    """`enumerate_hypotheses` through `kernels.enumerate_tuples` (same rules)."""
+    n_p, n_c, _ = mg.shape
+    order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4), as the numpy path
+    sp = -np.sort(-mg, axis=-1)
+    live = sp >= threshold
+    live[..., 0] = True
+    with np.errstate(divide="ignore"):
+        lsp = np.where(live, np.log(sp), -np.inf)
+    radix_t = _radix(sum_last(live).max(axis=0).tolist(), max_tuples)
+    n_t = math.prod(radix_t)
+    pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
+    if layout is None:
+        empty = np.zeros((0, 2), dtype=np.int64)
+        rules = (np.zeros((0, 0), dtype=np.int64), empty, empty)
+    else:
+        rules = _layout_arrays(layout)
+    modes, logp, valid = kernels.enumerate_tuples(
+        order,
+        lsp,
+        threshold=threshold,
+        ranks=_mixed_radix(radix_t),
+        n_keep=min(max_hypotheses, pre_k),
+        pre_k=pre_k,
+        phi=None if (phi is None or layout is None) else np.asarray(phi, dtype=np.float64),
+        rules=rules,
+        both_tolerance=2e-3,
+    )
+    return Hypotheses(modes=modes, log_prior=logp, valid=valid)
+
+
 def enumerate_hypotheses(
     marginals: npt.ArrayLike,
     threshold: float,
@@ -690,6 +881,7 @@ def enumerate_hypotheses(
     layout: ContactLayout | None = None,
     phi: npt.ArrayLike | None = None,
     max_tuples: int = 4096,
+    compiled: bool | None = None,
 ) -> Hypotheses:
     """Enumerate the live joint mode hypotheses of every particle at once (no Python loop
     over particles).
@@ -699,20 +891,28 @@ def enumerate_hypotheses(
     product of live modes, ranked by log prior (sum of log marginals); geometrically impossible
     ones (`geometric_feasible`) are removed, joint hypotheses whose normalised probability is
     below threshold are pruned (the best is always kept), and at most max_hypotheses are kept.
+
+    compiled: use `kernels.enumerate_tuples` (None: when numba is available); the same
+    hypotheses as the numpy path, except the order among exactly tied log priors at the
+    boundary of a truncated enumeration (numpy's argpartition leaves it unspecified).
     """
     mg = np.asarray(marginals, dtype=np.float64)
     n_p, n_c, _ = mg.shape
+    if compiled is None:
+        compiled = kernels.AVAILABLE
+    if compiled:
+        return _enumerate_compiled(
+            mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
+        )
     order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4)
     sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
     live = sp >= threshold
     live[..., 0] = True
     n_live = sum_last(live)  # (P, C)
     radix = n_live.max(axis=0)  # (C,)
-    radix_t = radix.tolist()
-    while math.prod(radix_t) > max_tuples:
-        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    radix_t = _radix(radix.tolist(), max_tuples)
     n_t = math.prod(radix_t)
-    ranks = _mixed_radix(tuple(radix_t))
+    ranks = _mixed_radix(radix_t)
     with np.errstate(divide="ignore"):
         lsp = np.log(sp)  # (P, C, 4)
     lsp = np.where(live, lsp, -np.inf)

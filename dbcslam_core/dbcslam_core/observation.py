@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core import kernels
 from dbcslam_core.angles import wrap_angle
 from dbcslam_core.errors import ModelError
 
@@ -547,14 +549,31 @@ def _proposal_all_observed(
     dt: float,
     obs: LinearObservation,
     s_diag: FloatArray,
+    compiled: bool = kernels.AVAILABLE,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """`gaussian_proposal` (log_pred, innovation, v_mean, v_cov) when every dim is observed,
     in order (the filter's case), entry by entry: the same operations as the general form
-    (same values) on the (...) batch arrays of each matrix entry, no ops on (..., n, n)
-    blocks, whose tiny inner axes make numpy iterate in runs of n elements."""
+    (same values to round-off) either compiled (`kernels.gaussian_update`, one loop over the
+    batch) or on the (...) batch arrays of each matrix entry (no ops on (..., n, n) blocks,
+    whose tiny inner axes make numpy iterate in runs of n elements)."""
     n = vh.shape[-1]
     dt2 = dt * dt
     y = obs.residual(qa + dt * vh)  # (..., n)
+    if compiled:
+        lead = y.shape[:-1]
+        log_pred, v_mean, v_cov = kernels.gaussian_update(
+            np.ascontiguousarray(y.reshape(-1, n)),
+            np.ascontiguousarray(vh.reshape(-1, n)),
+            np.ascontiguousarray(sv.reshape(-1, n, n)),
+            s_diag=s_diag,
+            dt=dt,
+        )
+        return (
+            log_pred.reshape(lead),
+            y,
+            v_mean.reshape(*lead, n),
+            v_cov.reshape(*lead, n, n),
+        )
     # S = dt^2 cov_v + diag(sq^2 + R) = L L^T (lower entries)
     s_ent = [[dt2 * sv[..., i, j] + s_diag[i, j] for j in range(i + 1)] for i in range(n)]
     low = _chol_of(s_ent)
@@ -622,11 +641,15 @@ def sample_gaussian_proposal(
     v_cov: npt.ArrayLike,
     dt: float,
     rng: np.random.Generator,
+    draw: Callable[[tuple[int, ...]], FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Draw (v', e_q) (N, nq) for the chosen hypotheses (rows of prop's arrays).
 
     v' ~ N(v_mean, v_cov) via a jittered Cholesky factor; then e_q | v' on observed dims.
+    draw(shape): the standard normals (default rng.standard_normal; e.g. shared by rows
+    that must see the same noise).
     """
+    normals = rng.standard_normal if draw is None else draw
     vm = np.asarray(v_mean, dtype=np.float64)
     cov = np.asarray(v_cov, dtype=np.float64)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -638,7 +661,7 @@ def sample_gaussian_proposal(
     ar = np.arange(n)
     cov[..., ar, ar] += 1e-12 * np.maximum(scale, 1e-300)[..., None]  # jitter on the diagonal
     low = _chol_entries(cov)
-    z = rng.standard_normal(vm.shape)
+    z = normals(vm.shape)
     corr = np.stack(
         [
             sum((low[i][k] * z[..., k] for k in range(1, i + 1)), low[i][0] * z[..., 0])
@@ -650,7 +673,7 @@ def sample_gaussian_proposal(
     y = np.asarray(innovation, dtype=np.float64)
     r = y - dt * (v_new - np.asarray(v_h, dtype=np.float64))
     q_mean = np.where(prop.observed, prop.q_gain * r, 0.0)
-    e_q = q_mean + prop.q_std * rng.standard_normal(vm.shape)
+    e_q = q_mean + prop.q_std * normals(vm.shape)
     return np.asarray(v_new, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
 
 

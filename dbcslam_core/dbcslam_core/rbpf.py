@@ -15,6 +15,7 @@ centre of mass; twists (vx, vy[, omega]) in the world frame.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -24,6 +25,7 @@ import numpy.typing as npt
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
+    Hypotheses,
     Mode,
     ReducedSolution,
     ViolationScales,
@@ -35,7 +37,7 @@ from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
-from dbcslam_core.geometry import contact_coordinates, contact_kinematics
+from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
 from dbcslam_core.observation import (
     ForceObservation,
     JointSmoother,
@@ -53,6 +55,7 @@ from dbcslam_core.parameters import (
     FrictionMapView,
     predict_parameters,
 )
+from dbcslam_core.particles import MapHistory, ParticleSet
 from dbcslam_core.resampling import (
     RESAMPLERS,
     effective_sample_size,
@@ -133,6 +136,18 @@ class FilterConfig:
       `normal` (the component along the contact normal: measured better on synthetic and
       pybullet pushes, the tangential part is the most model-sensitive and biased stick/slide
       towards sliding with the lowest pusher friction) or `both`.
+    * friction_bank: every particle carries one copy of the continuous state (and of the mode
+      marginals) per joint friction hypothesis b, driven by the same random numbers (a bank
+      of B fixed-friction sub-filters per particle). The friction belief of a particle is
+      then updated by the predictive likelihood of its b-copies, p(b | o) proportional to
+      p(b) prod_l p(o_l | o_{<l}, b, copy b), instead of being conditioned on one sampled
+      velocity: without the bank, an impact's sampled velocity fits one b only, each
+      particle's closed-form belief turns one-hot there and resampling on pose spreads a
+      label (at 40 particles the gripper ended on a wrong coefficient in 4 of 5 seeds).
+      Resampling moves whole banks. Requires the time-invariant `reuse` parameter model
+      (the copies would need IMM-style mixing for a coefficient that changes between
+      steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
+      the reduced solves and proposals are as many as without the bank.
     """
 
     particles: int = 500
@@ -167,6 +182,7 @@ class FilterConfig:
     joint_maneuver_accel_std: float | None = None
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
+    friction_bank: bool = False
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -214,6 +230,12 @@ class FilterConfig:
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
             raise ModelError(msg)
+        if self.friction_bank and self.parameter_model != "reuse":
+            msg = (
+                "friction_bank needs the time-invariant parameter_model 'reuse' (a coefficient "
+                f"that changes between steps would need IMM mixing), got {self.parameter_model!r}"
+            )
+            raise ModelError(msg)
 
     @classmethod
     def preset(cls, kind: str, **overrides: Any) -> FilterConfig:
@@ -243,6 +265,7 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
+                "friction_bank": True,
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -291,6 +314,9 @@ class Estimate:
     live_hypotheses: mean number of live joint mode hypotheses per particle.
     log_likelihood: log p(o_l | o_{0:l-1}) (0 without observation). resampled: whether the
     particles were resampled in this step. step: step counter (1 for the first step).
+    particle_poses (R, nq) and particle_weights (R,): the particle cloud the estimate was
+    computed from (rows of the state arrays before resampling; weights sum to 1), e.g. for
+    visualisation.
     """
 
     step: int
@@ -305,6 +331,18 @@ class Estimate:
     live_hypotheses: float
     log_likelihood: float
     resampled: bool
+    particle_poses: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    particle_weights: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def non_finite_field(self) -> str | None:
+        """Name of the first output field holding a NaN or infinity (None: all finite)."""
+        for name in ("pose", "pose_cov", "twist", "twist_cov", "modes", "friction"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                return name
+        for pair, probs in enumerate(self.friction_map.probs):
+            if not np.all(np.isfinite(probs)):
+                return f"friction map (pair {pair})"
+        return None
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
@@ -318,6 +356,86 @@ def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
     with np.errstate(divide="ignore"):
         out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
     return np.asarray(np.squeeze(out, axis=axis), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class _StepInputs:
+    """Inputs of one step: the observation and its linearisation, the force reading and its
+    obstacle, the wrench u (nq,), smoothed joints at the end of the step and the obstacle
+    positions / velocities during the step (env0, env_vel)."""
+
+    observation: PoseObservation | None
+    lin: LinearObservation | None
+    force: ForceObservation | None
+    force_obstacle: int | None
+    u: FloatArray
+    joints: FloatArray
+    env0: FloatArray
+    env_vel: FloatArray
+
+
+@dataclass(frozen=True)
+class _FreeMotion:
+    """Kinematics at the particles and the motion without contact impulses: v_free (P, nv);
+    with support friction v_free_b (P, B, nv) and the effective mass m_eff (P, B, nv, nv);
+    free gap rates an and slips at (P, C)."""
+
+    kin: ContactKinematics
+    v_free: FloatArray
+    v_free_b: FloatArray | None
+    m_eff: FloatArray | None
+    an: FloatArray
+    at: FloatArray
+
+
+@dataclass(frozen=True)
+class _Entries:
+    """The N live (particle, joint hypothesis) entries: hyp (padded (P, K) layout), n_k = K,
+    pi / ki (N,) their particle and hypothesis, slot (P, K) entry index or -1, modes_n (N, C),
+    pbcm (N, B, C) flat index of pred[p, b, c, mode], lp (N, B) log prior."""
+
+    hyp: Hypotheses
+    n_k: int
+    pi: IntArray
+    ki: IntArray
+    slot: IntArray
+    modes_n: IntArray
+    pbcm: IntArray
+    lp: FloatArray
+
+
+@dataclass(frozen=True)
+class _Dynamics:
+    """Per entry x friction hypothesis: post-step velocity v_h (N, B, nv), discrete proposal
+    weight log_alpha (N, B) and velocity noise covariance cov_h (N, B, nv, nv)."""
+
+    v_h: FloatArray
+    log_alpha: FloatArray
+    cov_h: FloatArray
+
+
+@dataclass(frozen=True)
+class _Proposal:
+    """Per particle: evidence incr (P,) = log sum over (h, b) of proposal weight x predictive
+    likelihood, and the sampled state v_new, q_new (P, nq)."""
+
+    incr: FloatArray
+    v_new: FloatArray
+    q_new: FloatArray
+
+
+@dataclass
+class _Posterior:
+    """Closed-form discrete posterior per particle: fric_post (P, B), fric_pair (P, pairs,
+    Kmax) per-pair marginals, modes_post (P, B, C, 4) given b, marg_post (P, C, 4), pair_in
+    (P, pairs) P(pair in contact), p_contact (P, C)."""
+
+    fric_post: FloatArray
+    fric_pair: FloatArray
+    modes_post: FloatArray
+    marg_post: FloatArray
+    pair_in: FloatArray
+    p_contact: FloatArray
 
 
 class DbcSlamFilter:
@@ -401,10 +519,20 @@ class DbcSlamFilter:
         self._mu = np.stack(
             [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
         )  # (B, C)
+        # friction bank: n_sub copies of each particle, one per friction hypothesis, whose
+        # arrays carry a friction axis of length n_fb = 1 (sub-particle j = i * n_sub + b has
+        # hypothesis _sub_b[j]); without the bank n_sub = 1 and the arrays carry all B
+        self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
+        self._n_sub = self.n_b if self._bank else 1
+        self.n_fb = 1 if self._bank else self.n_b
+        n_sub_particles = cfg.particles * self._n_sub
+        self._sub_b: IntArray | None = (
+            np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
+        )
         # flat index of pred[p, b, c, m] (P, B, C, 4): p * stride + offset[b, c] + m
-        self._pred_stride = self.n_b * self.n_c * N_MODES
+        self._pred_stride = self.n_fb * self.n_c * N_MODES
         self._pred_offset = (
-            np.arange(self.n_b)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
+            np.arange(self.n_fb)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
         ) * N_MODES
         # support friction (push): coefficient per friction hypothesis b, or None
         sp = self.model.surface_pair
@@ -423,6 +551,7 @@ class DbcSlamFilter:
             for p in range(self.n_pairs):
                 pri = pri * self._prior_pair[p][beta[:, p]]
             self._prior_b = pri / pri.sum()
+        self._prior_fb = np.ones(1) if self._bank else self._prior_b  # arrays' friction axis
         self._scales = ViolationScales(
             impulse=cfg.violation_impulse,
             velocity=cfg.violation_velocity,
@@ -440,24 +569,59 @@ class DbcSlamFilter:
             cfg.joint_accel_std,
             maneuver_accel_std=cfg.joint_maneuver_accel_std,
         )
-        self.q = np.zeros((cfg.particles, self.nq))
-        self.v = np.zeros((cfg.particles, self.nq))
-        self.log_w = np.zeros(cfg.particles)
-        self.fric = np.tile(self._prior_b, (cfg.particles, 1))
-        self.modes = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
-        self.modes[..., Mode.SEPARATED] = 1.0
-        # fixed-lag history for the friction map: ring buffer (map_lag + 1, P, W) of packed
-        # per-particle rows [fric_pair (pairs * Kmax) | s (C) | P(in contact) (C)], the oldest
-        # of the _hist_len entries at slot _hist_head
-        self._hist_width = self.n_pairs * self._k_max + 2 * self.n_c
-        self._hist_buf = np.zeros((cfg.map_lag + 1, cfg.particles, self._hist_width))
-        self._hist_head = 0
-        self._hist_len = 0
+        modes0 = np.zeros((n_sub_particles, self.n_fb, self.n_c, N_MODES))
+        modes0[..., Mode.SEPARATED] = 1.0
+        self.particles = ParticleSet(
+            q=np.zeros((n_sub_particles, self.nq)),
+            v=np.zeros((n_sub_particles, self.nq)),
+            log_w=np.zeros(cfg.particles),
+            fric=np.tile(self._prior_fb, (n_sub_particles, 1)),
+            modes=modes0,
+            history=MapHistory(
+                cfg.map_lag, cfg.particles, self.n_pairs * self._k_max + 2 * self.n_c
+            ),
+            bank=np.tile(self._prior_b, (cfg.particles, 1)) if self._bank else None,
+            copies=self._n_sub,
+        )
         # contacts of each friction pair (None: all contacts belong to the pair)
         self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
             None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
             for pr in range(self.n_pairs)
         ]
+
+    # ------------------------------------------------------------- particle arrays
+    @property
+    def q(self) -> FloatArray:
+        """Particle poses (P, nq) (m, m[, rad]), world frame."""
+        return self.particles.q
+
+    @q.setter
+    def q(self, value: FloatArray) -> None:
+        self.particles.q = value
+
+    @property
+    def v(self) -> FloatArray:
+        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame."""
+        return self.particles.v
+
+    @v.setter
+    def v(self, value: FloatArray) -> None:
+        self.particles.v = value
+
+    @property
+    def log_w(self) -> FloatArray:
+        """Unnormalised log weights (P,)."""
+        return self.particles.log_w
+
+    @property
+    def fric(self) -> FloatArray:
+        """Friction belief over the joint friction hypotheses (P, B)."""
+        return self.particles.fric
+
+    @property
+    def modes(self) -> FloatArray:
+        """Per-contact mode marginals given the friction hypothesis (P, B, C, 4)."""
+        return self.particles.modes
 
     # ------------------------------------------------------------------ initialisation
     def initialize(
@@ -482,22 +646,30 @@ class DbcSlamFilter:
             if v_std is None
             else np.broadcast_to(np.asarray(v_std, dtype=np.float64), (self.nq,))
         )
-        self.q = qm + qs * self.rng.standard_normal((p, self.nq))
-        self.v = vm + vs * self.rng.standard_normal((p, self.nq))
+        q = qm + qs * self.rng.standard_normal((p, self.nq))
+        v = vm + vs * self.rng.standard_normal((p, self.nq))
         if self.nq == 3:
-            self.q[:, 2] = wrap_angle(self.q[:, 2])
-        self.log_w = np.zeros(p)
-        self.fric = np.tile(self._prior_b, (p, 1))
+            q[:, 2] = wrap_angle(q[:, 2])
+        if self._n_sub > 1:  # the bank's copies start from their particle's state
+            q = np.repeat(q, self._n_sub, axis=0)
+            v = np.repeat(v, self._n_sub, axis=0)
         if joints is not None:
             self._joints_prev = self._joint_filter.reset(joints)
         env = self._joints_prev if self._joints_prev is not None else None
-        kin = contact_kinematics(self.scenario, self.q, env, None)
-        an = np.einsum("pcv,pv->pc", kin.Jn, self.v) - kin.vn_env
-        at = np.einsum("pcv,pv->pc", kin.Jt, self.v) - kin.vt_env
+        kin = contact_kinematics(self.scenario, q, env, None)
+        an = np.einsum("pcv,pv->pc", kin.Jn, v) - kin.vn_env
+        at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
-        self.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
-        self._hist_head = 0
-        self._hist_len = 0
+        ps = self.particles
+        n_sub_particles = q.shape[0]
+        ps.q, ps.v, ps.log_w = q, v, np.zeros(p)
+        ps.fric = np.tile(self._prior_fb, (n_sub_particles, 1))
+        ps.modes = np.broadcast_to(
+            soft[:, None], (n_sub_particles, self.n_fb, self.n_c, N_MODES)
+        ).copy()
+        if ps.bank is not None:
+            ps.bank = np.tile(self._prior_b, (p, 1))
+        ps.history.clear()
         self._initialised = True
 
     def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
@@ -533,7 +705,49 @@ class DbcSlamFilter:
         force equivalent of the process noise is folded into `FilterConfig.force_noise`), so
         it is a factor of the discrete hypothesis weights: it multiplies into the proposal
         weights of (h, b), the particle weight, and the closed-form mode/friction posterior.
+
+        The phases (DESIGN.md, "Estimator"): read the inputs, free motion, mode prediction
+        (softened NCP transition), live joint hypotheses, their reduced dynamics, the optimal
+        proposal and the sampled state, the closed-form discrete posterior, eq. (7), weights
+        and resampling, and the estimate.
         """
+        inp = self._read_inputs(observation, inputs, force)
+        free = self._free_motion(inp)
+        pred = self._predict_modes(free)
+        ent = self._live_entries(pred, free)
+        dyn = self._hypothesis_dynamics(ent, free, inp)
+        prop = self._propose(ent, dyn, inp)
+        post = self._discrete_posterior(ent, dyn, prop)
+        incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
+        self._update_beliefs(post)
+        log_ml = self._reweight(incr, inp)
+        w = self._move(prop, post, inp.joints)
+        row_w = self._row_weights(w)
+        ess, resampled = self._maybe_resample(w)
+        map_w = normalise_log_weights(self.particles.log_w)[0] if resampled else w
+        return self._estimate(
+            w=w,  # the pre-resampling weights (lower variance)
+            row_w=row_w,  # the same per row of the state arrays (bank copies)
+            map_w=map_w,  # the map snapshot: the (resampled) particles' weights
+            q=prop.q_new,
+            v=prop.v_new,
+            marg_post=post.marg_post,
+            fric_pair=post.fric_pair,
+            ess=ess,
+            live=float(ent.hyp.n_live.mean()),
+            log_ml=log_ml,
+            resampled=resampled,
+        )
+
+    # -------------------------------------------------------------------- step phases
+    def _read_inputs(
+        self,
+        observation: PoseObservation | None,
+        inputs: FilterInput,
+        force: ForceObservation | None,
+    ) -> _StepInputs:
+        """Validate the inputs, linearise the observation, advance the joint smoother and
+        initialise the particles from the first observation if needed."""
         cfg = self.config
         lin = None if observation is None else self._obs_model.linearize(observation)
         force_obst = None if force is None else self._force_obstacle(force)
@@ -570,141 +784,182 @@ class DbcSlamFilter:
             env_vel = (joints - env0) / self.dt
         self._joints_prev = joints
         self._step += 1
-        dt = self.dt
-        n_p = cfg.particles
+        return _StepInputs(observation, lin, force, force_obst, u, joints, env0, env_vel)
 
-        # 1. kinematics and free motion
-        kin = contact_kinematics(self.scenario, self.q, env0, env_vel)
+    def _free_motion(self, inp: _StepInputs) -> _FreeMotion:
+        """Contact kinematics at the particles and the velocity without contact impulses
+        (with the implicit support friction per friction hypothesis when the body rests on
+        a surface: v_free (P, B, nv) and the effective mass (P, B, nv, nv))."""
+        cfg = self.config
+        dt = self.dt
+        ps = self.particles
+        kin = contact_kinematics(self.scenario, ps.q, inp.env0, inp.env_vel)
         m_eff: FloatArray | None = None
         v_free_b: FloatArray | None = None
         if self._mu_surface is None:
-            f = self.model.generalized_force(self.q, self.v, u)
-            v_free = self.v + dt * f * self._inv_mass
-        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(
-                self.q, self.v, 1.0, velocity_eps=cfg.support_velocity_eps
+            f = self.model.generalized_force(ps.q, ps.v, inp.u)
+            v_free = ps.v + dt * f * self._inv_mass
+        else:  # support friction linearised at the particle velocity (dynamic or quasi-static)
+            mu_s = (  # (B,) or per bank copy (P B, 1)
+                self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            m_eff = (
-                self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
+            m_eff, v_free_b = self.model.support_terms(
+                ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
             )
-            v_free_b = self.model.free_velocity(self.q[:, None], self.v[:, None], u, m_eff)
-            v_free = np.einsum("pb,pbv->pv", self.fric, v_free_b)  # transition only
+            v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
-        # 2. transition (softened NCP + persistence)
-        soft = soft_modes(kin.phi, an, at, dt, cfg.transition)
+        return _FreeMotion(kin, v_free, v_free_b, m_eff, an, at)
+
+    def _predict_modes(self, free: _FreeMotion) -> FloatArray:
+        """Predicted per-contact mode marginals (P, B, C, 4): softened NCP checks of the free
+        motion, edge consistency of adjacent vertices, persistence (`transition`)."""
+        cfg = self.config
+        ps = self.particles
+        kin = free.kin
+        soft = soft_modes(kin.phi, free.an, free.at, self.dt, cfg.transition)
         if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
-            prev_in = 1.0 - np.einsum("pb,pbc->pc", self.fric, self.modes[..., Mode.SEPARATED])
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
             partner = np.zeros_like(prev_in)
             for c, d in self._edge_partners:
                 partner[:, c] = np.maximum(partner[:, c], prev_in[:, d])
             soft = edge_consistency(
-                soft, kin.phi, an, dt, partner_contact=partner, params=cfg.transition
+                soft, kin.phi, free.an, self.dt, partner_contact=partner, params=cfg.transition
             )
-        pred = mode_transition(
-            self.modes,
+        return mode_transition(
+            ps.modes,
             soft[:, None],
             cfg.transition,
             phi=kin.phi[:, None],
-            gap_rate_free=an[:, None],
-            dt=dt,
-        )  # (P, B, C, 4)
-        marg = np.einsum("pb,pbcm->pcm", self.fric, pred)
-        # 3. joint hypotheses
-        hyp = enumerate_hypotheses(
-            marg,
-            cfg.prune_threshold,
-            cfg.max_hypotheses,
-            layout=self._layout,
-            phi=kin.phi,
+            gap_rate_free=free.an[:, None],
+            dt=self.dt,
         )
-        modes_k = hyp.modes  # (P, K, C)
-        n_k = modes_k.shape[1]
-        # 4. reduced dynamics for all live (particle, hypothesis) pairs x friction: the padded
-        # (P, K) layout is compacted to the N live entries first.
+
+    def _live_entries(self, pred: FloatArray, free: _FreeMotion) -> _Entries:
+        """Joint mode hypotheses per particle, compacted from the padded (P, K) layout to the
+        N live entries, with their log prior per friction hypothesis (N, B)."""
+        cfg = self.config
+        n_p = self.particles.size
+        marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
+        hyp = enumerate_hypotheses(
+            marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
+        )
+        n_k = hyp.modes.shape[1]
         pi, ki = np.nonzero(hyp.valid)
-        n_live = pi.size
         slot = np.full((n_p, n_k), -1, dtype=np.int64)
-        slot[pi, ki] = np.arange(n_live)
-        modes_n = modes_k[pi, ki]  # (N, C)
+        slot[pi, ki] = np.arange(pi.size)
+        modes_n = hyp.modes[pi, ki]  # (N, C)
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
         pred_full = pred
-        if pred.shape != (n_p, self.n_b, self.n_c, N_MODES):
-            pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
+        if pred.shape != (n_p, self.n_fb, self.n_c, N_MODES):
+            pred_full = np.broadcast_to(pred, (n_p, self.n_fb, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
             lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
+        return _Entries(hyp, n_k, pi, ki, slot, modes_n, pbcm, lp)
+
+    def _hypothesis_dynamics(
+        self, ent: _Entries, free: _FreeMotion, inp: _StepInputs
+    ) -> _Dynamics:
+        """Reduced dynamics of every live entry x friction hypothesis, the discrete proposal
+        weights log alpha (N, B) (friction belief x mode prior x NCP consistency, times the
+        force likelihood) and the velocity noise covariance of each (N, B, nv, nv)."""
+        cfg = self.config
+        n_p = self.particles.size
         sol = self._solve_entries(
-            modes_n,
-            v_free.take(pi, axis=0) if v_free_b is None else v_free_b.take(pi, axis=0),
-            kin,
-            pi,
-            None if m_eff is None else m_eff.take(pi, axis=0),
-            sensitivity=force is not None,
+            ent.modes_n,
+            free.v_free.take(ent.pi, axis=0)
+            if free.v_free_b is None
+            else free.v_free_b.take(ent.pi, axis=0),
+            free.kin,
+            ent.pi,
+            None if free.m_eff is None else free.m_eff.take(ent.pi, axis=0),
+            sensitivity=inp.force is not None,
         )
-        v_h = sol.v_next  # (N, B, nv)
-        l_cond_full = np.full((n_p, n_k, self.n_b), -np.inf)
-        l_cond_full[pi, ki] = lp - 0.5 * sol.score
-        l_cond_full = l_cond_full - self._lse(l_cond_full, 1)[:, None, :]
+        l_cond = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
+        l_cond[ent.pi, ent.ki] = ent.lp - 0.5 * sol.score
+        l_cond = l_cond - self._lse(l_cond, 1)[:, None, :]
         with np.errstate(divide="ignore"):
-            log_alpha_full = np.log(self.fric)[:, None, :] + l_cond_full  # (P, K, B)
-        log_alpha = log_alpha_full[pi, ki]  # (N, B)
-        # 5. optimal proposal. Process noise is force noise: a perturbation e of the free
-        # velocity reaches v' through the response map of the hypothesis (constrained
-        # directions are absorbed by the contact impulses), plus a small isotropic part.
+            log_alpha_full = np.log(self.particles.fric)[:, None, :] + l_cond  # (P, K, B)
+        log_alpha = log_alpha_full[ent.pi, ent.ki]  # (N, B)
+        # Process noise is force noise: a perturbation e of the free velocity reaches v'
+        # through the response map of the hypothesis (constrained directions are absorbed by
+        # the contact impulses), plus a small isotropic part.
         boost = 1.0
         if cfg.warmup_steps > 0:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         sig2 = (self._sigma_v * boost) ** 2
-        if force is not None and force_obst is not None:
+        if inp.force is not None and inp.force_obstacle is not None:
             log_alpha = log_alpha + self._force_log_likelihood(
-                force, force_obst, sol, kin.normal[pi], sig2
+                inp.force, inp.force_obstacle, sol, free.kin.normal[ent.pi], sig2
             )
         resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
+        return _Dynamics(sol.v_next, log_alpha, cov_h)
+
+    def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
+        """Optimal proposal: per entry x friction the Gaussian posterior of v' given the
+        observation; one (hypothesis, friction) drawn per particle in proportion to its
+        weight (Gumbel-max), then v' and the position noise from its Gaussian."""
+        dt = self.dt
+        n_p = self.particles.size
         prop = gaussian_proposal(
-            self.q.take(pi, axis=0)[:, None, :], v_h, cov_h, dt, lin, sigma_q=self._sigma_q
+            self.particles.q.take(ent.pi, axis=0)[:, None, :],
+            dyn.v_h,
+            dyn.cov_h,
+            dt,
+            inp.lin,
+            sigma_q=self._sigma_q,
         )
-        log_joint = np.full((n_p, n_k, self.n_b), -np.inf)
-        log_joint[pi, ki] = log_alpha + prop.log_pred
-        incr = self._lse(log_joint.reshape(n_p, -1), 1)  # (P,)
+        log_joint = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
+        log_joint[ent.pi, ent.ki] = dyn.log_alpha + prop.log_pred
         flat = log_joint.reshape(n_p, -1)
-        gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
+        incr = self._lse(flat, 1)  # (P,)
+        gumbel = -np.log(-np.log(self._shared_draws(self.rng.random, flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
-        k_star, b_star = np.unravel_index(pick, (n_k, self.n_b))
-        rows = np.arange(n_p)
-        n_star = slot[rows, k_star]
+        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_fb))
+        n_star = ent.slot[np.arange(n_p), k_star]
         v_new, e_q = sample_gaussian_proposal(
             prop,
-            v_h=v_h[n_star, b_star],
+            v_h=dyn.v_h[n_star, b_star],
             innovation=prop.innovation[n_star, b_star],
             v_mean=prop.v_mean[n_star, b_star],
             v_cov=prop.v_cov[n_star, b_star],
             dt=dt,
             rng=self.rng,
+            draw=None if self._n_sub == 1 else self._shared_normals,
         )
-        q_new = self.q + dt * v_new + e_q
+        q_new = self.particles.q + dt * v_new + e_q
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
-        # 6. closed-form discrete posterior given the sampled continuous state
-        log_post = np.full((n_p, n_k, self.n_b), -np.inf)
-        dens = gaussian_log_density(v_new.take(pi, axis=0)[:, None, :] - v_h, cov_h)
-        log_post[pi, ki] = np.where(np.isfinite(log_alpha), log_alpha + dens, -np.inf)
+        return _Proposal(incr, v_new, q_new)
+
+    def _discrete_posterior(self, ent: _Entries, dyn: _Dynamics, prop: _Proposal) -> _Posterior:
+        """Closed-form posterior of the discrete state given the sampled continuous state:
+        joint over (hypothesis, friction), then the friction belief (P, B), the per-contact
+        mode marginals given b (P, B, C, 4) and overall (P, C, 4), and P(pair in contact)."""
+        n_p = self.particles.size
+        log_post = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
+        v_rel = prop.v_new.take(ent.pi, axis=0)[:, None, :] - dyn.v_h
+        dens = gaussian_log_density(v_rel, dyn.cov_h)
+        log_post[ent.pi, ent.ki] = np.where(
+            np.isfinite(dyn.log_alpha), dyn.log_alpha + dens, -np.inf
+        )
         log_post = log_post - self._lse(log_post.reshape(n_p, -1), 1)[:, None, None]
         post = np.exp(log_post)  # (P, K, B)
         fric_post = post.sum(axis=1)  # (P, B)
         # num[p, b, c, m] = sum_k post[p, k, b] [mode_c of (p, k) == m], over the live entries
-        # (flat index of (p, b, c, mode) as for lp above)
-        post_n = post[pi, ki]  # (N, B)
+        # (flat index of (p, b, c, mode) as for the log prior)
+        post_n = post[ent.pi, ent.ki]  # (N, B)
         num = np.bincount(
-            pbcm.reshape(-1),
+            ent.pbcm.reshape(-1),
             weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
-        ).reshape(n_p, self.n_b, self.n_c, N_MODES)
+        ).reshape(n_p, self.n_fb, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
         tiny = 1e-12
         modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
-        in_c = modes_n != Mode.SEPARATED  # (N, C)
+        in_c = ent.modes_n != Mode.SEPARATED  # (N, C)
         p_n = post_n.sum(axis=1)  # (N,) posterior of each live entry
         pair_in = np.zeros((n_p, self.n_pairs))  # (P, pairs): P(pair in contact)
         for pr, mask in enumerate(self._pair_contacts):
@@ -714,69 +969,132 @@ class DbcSlamFilter:
                 w_in = p_n * in_c[:, mask].any(axis=1)
             else:
                 continue
-            pair_in[:, pr] = np.bincount(pi, weights=w_in, minlength=n_p)
+            pair_in[:, pr] = np.bincount(ent.pi, weights=w_in, minlength=n_p)
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
-        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
-        # 7. eq. (7): predictive friction belief for the next step
-        if self._step <= cfg.friction_hold_steps:
+        # (P, pairs, Kmax); a bank's copies have one friction each: `_bank_evidence` sets it
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
+        return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
+
+    def _bank_evidence(self, incr_rows: FloatArray, post: _Posterior) -> FloatArray:
+        """Friction bank: each particle's evidence (P,) = log sum_b bank[i, b] p(o | copy b)
+        from its copies' evidence (P B,); the bank belief becomes the posterior (held at the
+        prior during `friction_hold_steps`); the per-pair friction marginals and P(in
+        contact) of the particle (for the map and the estimate) from the bank."""
+        ps = self.particles
+        assert ps.bank is not None
+        n_p = ps.count
+        with np.errstate(divide="ignore"):
+            joint = np.log(ps.bank) + incr_rows.reshape(n_p, self._n_sub)
+        incr = self._lse(joint, 1)
+        if self._step > self.config.friction_hold_steps:
+            ok = np.isfinite(incr)
+            ps.bank = np.where(
+                ok[:, None], np.exp(joint - np.where(ok, incr, 0.0)[:, None]), ps.bank
+            )
+        post.fric_pair = self._pair_marginals(ps.bank)
+        post.p_contact = np.einsum(
+            "pb,pbc->pc", ps.bank, post.p_contact.reshape(n_p, self._n_sub, self.n_c)
+        )
+        return incr
+
+    def _shared_draws(
+        self, draw: Callable[[tuple[int, ...]], FloatArray], shape: tuple[int, ...]
+    ) -> FloatArray:
+        """Random numbers of `shape` (rows first); a bank's copies share their particle's
+        (common random numbers: the copies differ by their friction only)."""
+        if self._n_sub == 1:
+            return draw(shape)
+        per_particle = draw((shape[0] // self._n_sub, *shape[1:]))
+        return np.repeat(per_particle, self._n_sub, axis=0)
+
+    def _shared_normals(self, shape: tuple[int, ...]) -> FloatArray:
+        """Standard normals of `shape`, shared by a bank's copies (`_shared_draws`)."""
+        return self._shared_draws(self.rng.standard_normal, shape)
+
+    def _row_weights(self, w: FloatArray) -> FloatArray:
+        """Weights (P B,) of the rows of the state arrays: w (P,) x the bank belief."""
+        bank = self.particles.bank
+        return w if bank is None else np.asarray((w[:, None] * bank).reshape(-1))
+
+    def weighted_particles(self) -> tuple[FloatArray, FloatArray]:
+        """Particle poses (rows of the state arrays, (R, nq)) and their normalised weights
+        (R,) (bank copies weighted by their particle's friction belief): e.g. for markers."""
+        w, _ = normalise_log_weights(self.particles.log_w)
+        return self.particles.q, self._row_weights(w)
+
+    def _update_beliefs(self, post: _Posterior) -> None:
+        """Eq. (7): the predictive friction belief of the next step (held at the prior
+        during `friction_hold_steps`) and the mode marginals given b."""
+        ps = self.particles
+        if self._n_sub > 1:  # bank: per-copy friction is its own hypothesis
+            # a copy without any feasible hypothesis (zero evidence: its belief weight
+            # is 0 now) keeps its previous marginals instead of 0/0
+            bad = ~np.asarray(np.isfinite(post.modes_post).all(axis=(1, 2, 3)))
+            ps.modes = np.where(bad[:, None, None, None], ps.modes, post.modes_post)
+            return
+        if self._step <= self.config.friction_hold_steps:
             # warm-up: wrong initial velocities are still being weeded out, and collisions
             # of those particles would bias the friction belief -> hold it at the prior.
-            self.fric = np.tile(self._prior_b, (n_p, 1))
-            fric_pair = self._pair_marginals(self.fric)
+            ps.fric = np.tile(self._prior_b, (ps.size, 1))
+            post.fric_pair = self._pair_marginals(ps.fric)
         else:
-            self.fric = self._predict_friction(fric_post, fric_pair, pair_in)
-        self.modes = modes_post
-        # 8. weights, marginal likelihood, map history, resampling
-        w_prev, _ = normalise_log_weights(self.log_w)
+            ps.fric = self._predict_friction(post.fric_post, post.fric_pair, post.pair_in)
+        ps.modes = post.modes_post
+
+    def _reweight(self, incr: FloatArray, inp: _StepInputs) -> float:
+        """Multiply the weights by each particle's evidence; returns the step's log marginal
+        likelihood log p(o_l | o_{0:l-1}) (0 without observation)."""
+        ps = self.particles
+        w_prev, _ = normalise_log_weights(ps.log_w)
         with np.errstate(divide="ignore"):
             log_ml = (
                 float(_logsumexp(np.log(w_prev) + incr, axis=0))
-                if lin is not None or force is not None
+                if inp.lin is not None or inp.force is not None
                 else 0.0
             )
-        self.log_w = self.log_w + incr
-        if not np.any(np.isfinite(self.log_w)):
+        ps.log_w = ps.log_w + incr
+        if not np.any(np.isfinite(ps.log_w)):
             msg = (
-                f"all {n_p} particles have zero likelihood at step {self._step}: the observation "
-                f"{observation} is incompatible with the model"
+                f"all {ps.count} particles have zero likelihood at step {self._step}: the "
+                f"observation {inp.observation} is incompatible with the model"
             )
             raise ModelError(msg)
-        self.q, self.v = q_new, v_new
-        w, _ = normalise_log_weights(self.log_w)
-        # contact coordinate s at the end of the step for the map
-        s_new = contact_coordinates(self.scenario, self.q, joints)
-        old = self._hist_push(fric_pair, s_new, p_contact)
+        return log_ml
+
+    def _move(self, prop: _Proposal, post: _Posterior, joints: FloatArray) -> FloatArray:
+        """Take the sampled state and append the step to the friction-map history (the entry
+        leaving the lag window is committed); returns the normalised weights (P,)."""
+        ps = self.particles
+        ps.q, ps.v = prop.q_new, prop.v_new
+        w, _ = normalise_log_weights(ps.log_w)
+        s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
+        if ps.bank is not None:  # a particle's s: its most probable copy's
+            s_new = s_new.reshape(ps.count, self._n_sub, self.n_c)
+            s_new = s_new[np.arange(ps.count), np.argmax(ps.bank, axis=1)]
+        pk = self.n_pairs * self._k_max
+        row = np.empty((ps.count, ps.history.buf.shape[2]))
+        row[:, :pk] = post.fric_pair.reshape(ps.count, pk)
+        row[:, pk : pk + self.n_c] = s_new
+        row[:, pk + self.n_c :] = post.p_contact
+        old = ps.history.push(row)
         if old is not None:
             self._commit(self.map, old[None], w)
+        return w
+
+    def _maybe_resample(self, w: FloatArray) -> tuple[float, bool]:
+        """Resample when the effective sample size falls below the threshold; returns
+        (ESS before resampling, whether the set was resampled)."""
         ess = effective_sample_size(w)
-        estimate_w = w
-        resampled = False
-        if ess < cfg.ess_threshold * n_p:
-            idx = self._resampler(w, self.rng)
-            self.q = self.q[idx]
-            self.v = self.v[idx]
-            self.fric = self.fric[idx]
-            self.modes = self.modes[idx]
-            self._hist_buf = self._hist_buf.take(idx, axis=1)
-            self.log_w = np.zeros(n_p)
-            resampled = True
-            # estimate with the pre-resampling weights (lower variance)
-        # the map snapshot uses the weights of the (resampled) particles, as friction_map()
-        map_w = normalise_log_weights(self.log_w)[0] if resampled else w
-        return self._estimate(
-            w=estimate_w,
-            map_w=map_w,
-            q=q_new,
-            v=v_new,
-            marg_post=marg_post,
-            fric_pair=fric_pair,
-            ess=ess,
-            live=float(hyp.n_live.mean()),
-            log_ml=log_ml,
-            resampled=resampled,
-        )
+        if ess >= self.config.ess_threshold * self.particles.count:
+            return ess, False
+        self.particles.resample(self._resampler(w, self.rng))
+        return ess, True
 
     # ------------------------------------------------------------------------ helpers
     @staticmethod
@@ -834,7 +1152,7 @@ class DbcSlamFilter:
             phi=phi[:, None],
             vn_env=kin.vn_env.take(pi, axis=0)[:, None],
             vt_env=kin.vt_env.take(pi, axis=0)[:, None],
-            mu=self._mu[None],
+            mu=self._mu[None] if self._sub_b is None else self._mu[self._sub_b[pi]][:, None],
             dt=self.dt,
             scales=self._scales,
             groups=self._layout.obstacle,
@@ -926,33 +1244,6 @@ class DbcSlamFilter:
         joint = joint / sum_last(joint)[:, None]
         return np.asarray(joint, dtype=np.float64)
 
-    def _hist_push(
-        self, fric_pair: FloatArray, s: FloatArray, p_contact: FloatArray
-    ) -> FloatArray | None:
-        """Append one step to the map history; returns the entry (P, W) that leaves the lag
-        window (a view, valid until the next push) or None."""
-        cap = self._hist_buf.shape[0]
-        row = self._hist_buf[(self._hist_head + self._hist_len) % cap]
-        pk = self.n_pairs * self._k_max
-        row[:, :pk] = fric_pair.reshape(fric_pair.shape[0], pk)
-        row[:, pk : pk + self.n_c] = s
-        row[:, pk + self.n_c :] = p_contact
-        self._hist_len += 1
-        if self._hist_len <= self.config.map_lag:
-            return None
-        old: FloatArray = self._hist_buf[self._hist_head]
-        self._hist_head = (self._hist_head + 1) % cap
-        self._hist_len -= 1
-        return old
-
-    def _hist_entries(self) -> FloatArray:
-        """The uncommitted history (L, P, W), oldest first."""
-        cap = self._hist_buf.shape[0]
-        if self._hist_head + self._hist_len <= cap:
-            return self._hist_buf[self._hist_head : self._hist_head + self._hist_len]
-        order = (self._hist_head + np.arange(self._hist_len)) % cap
-        return self._hist_buf.take(order, axis=0)
-
     def _map_observations(
         self, entries: FloatArray, w: FloatArray
     ) -> list[tuple[FloatArray, FloatArray, FloatArray] | None]:
@@ -988,14 +1279,15 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
-        w, _ = normalise_log_weights(self.log_w)
+        w, _ = normalise_log_weights(self.particles.log_w)
         return self._friction_map_view(w)
 
     def _friction_map_view(self, w: FloatArray) -> FrictionMapView:
         """`friction_map` with the normalised weights w of self.log_w given."""
-        if self._hist_len == 0:
+        history = self.particles.history
+        if history.length == 0:
             return self.map.view()
-        obs = self._map_observations(self._hist_entries(), w)
+        obs = self._map_observations(history.entries(), w)
         pending = [None if o is None else self.map.accumulate(*o) for o in obs]
         return self.map.view(pending)
 
@@ -1003,6 +1295,7 @@ class DbcSlamFilter:
         self,
         *,
         w: FloatArray,
+        row_w: FloatArray,
         map_w: FloatArray,
         q: FloatArray,
         v: FloatArray,
@@ -1013,11 +1306,18 @@ class DbcSlamFilter:
         log_ml: float,
         resampled: bool,
     ) -> Estimate:
+        """The per-step summary: weighted moments of the rows q, v (R, nq) and mode marginals
+        marg_post (R, C, 4) under row_w (R,); friction (pairs, Kmax) from the particles'
+        fric_pair under w (P,); the friction map under map_w (P,)."""
         pose = np.zeros(3)
         pose_cov = np.zeros((3, 3))
         twist = np.zeros(3)
         twist_cov = np.zeros((3, 3))
         nq = self.nq
+        friction = np.einsum("p,pqk->qk", w, fric_pair)
+        w = row_w
+        if self._n_sub > 1:  # copies without weight may hold 0/0 marginals: keep them out
+            marg_post = np.where((w > 0.0)[:, None, None], marg_post, 0.0)
         mean_q = w @ q
         dq = q - mean_q
         if nq == 3:
@@ -1031,7 +1331,6 @@ class DbcSlamFilter:
         twist[:nq] = mean_v
         twist_cov[:nq, :nq] = (dv * w[:, None]).T @ dv
         modes = np.einsum("p,pcm->cm", w, marg_post)
-        friction = np.einsum("p,pqk->qk", w, fric_pair)
         return Estimate(
             step=self._step,
             pose=pose,
@@ -1045,6 +1344,8 @@ class DbcSlamFilter:
             live_hypotheses=live,
             log_likelihood=log_ml,
             resampled=resampled,
+            particle_poses=q,
+            particle_weights=w,
         )
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:

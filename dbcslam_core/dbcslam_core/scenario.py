@@ -27,7 +27,11 @@ Scenario keys added here (defaults shown):
   frictionless); `pressure` is the pressure distribution
   ``uniform | rim | vertices | centre | tripod``
   (`geometry.support_points`); `velocity_eps` (m/s) regularises the Coulomb support friction
-  (`PlanarModel.support_matrix`); other numeric keys are kept verbatim).
+  (`PlanarModel.support_matrix`); `model` is the push model ``dynamic`` (default: rigid body
+  with inertia, implicit Coulomb support friction, the object coasts when released) or
+  ``quasi_static`` (no inertia: ellipsoidal limit surface of the pressure distribution, the
+  object moves only while pushed; `PlanarModel`, `dbcslam_core.quasi_static`); other numeric
+  keys are kept verbatim).
 
 ``friction.candidates`` / ``friction.prior`` are either one list shared by all pairs or one
 list per pair. Each obstacle belongs to a friction pair: the pair with the obstacle's name,
@@ -57,6 +61,7 @@ __all__ = [
     "DEFAULT_VELOCITY_EPS",
     "MAX_SCENARIO_BYTES",
     "PRESSURE_MODELS",
+    "PUSH_MODELS",
     "SCENARIO_KINDS",
     "Body",
     "Disk",
@@ -368,6 +373,10 @@ PRESSURE_MODELS: tuple[str, ...] = ("uniform", "rim", "vertices", "centre", "tri
 DEFAULT_VELOCITY_EPS: float = 1e-4
 """Default regularisation speed (m/s) of the support friction (`surface.velocity_eps`)."""
 
+PUSH_MODELS: tuple[str, ...] = ("dynamic", "quasi_static")
+"""Push models (`surface.model`): rigid body with inertia and Coulomb support friction, or
+quasi-static pusher-slider on an ellipsoidal limit surface (see `PlanarModel`)."""
+
 
 @dataclass(frozen=True)
 class SurfaceSpec:
@@ -380,13 +389,20 @@ class SurfaceSpec:
     default `DEFAULT_VELOCITY_EPS`); other numeric keys are kept verbatim. pressure: the
     pressure distribution of the body on the support, one of `PRESSURE_MODELS` (None = not
     given = ``uniform``; kept as None so that YAML without the key round-trips unchanged).
+    model: the push model, one of `PUSH_MODELS` (None = not given = ``dynamic``).
     """
 
     pair: str | None = None
     params: tuple[tuple[str, float], ...] = ()
     pressure: str | None = None
+    model: str | None = None
 
     def __post_init__(self) -> None:
+        if self.model is not None and self.model not in PUSH_MODELS:
+            raise _fail(
+                f"scenario key 'surface.model' must be one of {list(PUSH_MODELS)}, got "
+                f"{self.model!r}"
+            )
         if self.pressure is not None and self.pressure not in PRESSURE_MODELS:
             raise _fail(
                 f"scenario key 'surface.pressure' must be one of {list(PRESSURE_MODELS)}, got "
@@ -402,6 +418,16 @@ class SurfaceSpec:
     def pressure_model(self) -> str:
         """The pressure distribution name (``uniform`` when not given)."""
         return self.pressure if self.pressure is not None else "uniform"
+
+    @property
+    def push_model(self) -> str:
+        """The push model name (``dynamic`` when not given)."""
+        return self.model if self.model is not None else "dynamic"
+
+    @property
+    def quasi_static(self) -> bool:
+        """Whether the push model is ``quasi_static``."""
+        return self.push_model == "quasi_static"
 
     @property
     def mu(self) -> float:
@@ -660,14 +686,17 @@ class Scenario:
             pressure = sm.get("pressure")
             if pressure is not None:
                 pressure = _str(pressure, "surface.pressure")
+            model = sm.get("model")
+            if model is not None:
+                model = _str(model, "surface.model")
             params = tuple(
                 sorted(
                     (k, _float(v, f"surface.{k}"))
                     for k, v in sm.items()
-                    if k not in ("pair", "pressure")
+                    if k not in ("pair", "pressure", "model")
                 )
             )
-            kwargs["surface"] = SurfaceSpec(pair, params, pressure)
+            kwargs["surface"] = SurfaceSpec(pair, params, pressure, model)
         return cls(
             kind=kind,
             dt=_float(data["dt"], "dt", positive=True),
@@ -749,6 +778,8 @@ class Scenario:
             surface: dict[str, Any] = {"pair": self.surface.pair}
             if self.surface.pressure is not None:
                 surface["pressure"] = self.surface.pressure
+            if self.surface.model is not None:
+                surface["model"] = self.surface.model
             surface.update(dict(self.surface.params))
             out["surface"] = surface
         return out
@@ -841,13 +872,15 @@ def push_scenario(
     support_mu: float | None = None,
     pressure: str | None = None,
     velocity_eps: float | None = None,
+    model: str | None = None,
 ) -> Scenario:
     """A pushed polygon (outline about its centre of mass) and a disk pusher.
 
     inertia defaults to the uniform-density polar moment of the outline about the origin.
     support_pair: name of the support friction pair (estimated; second pair after
     ``pusher``); support_mu: known support coefficient (``surface.mu``, used without a pair);
-    pressure: ``surface.pressure``; velocity_eps: ``surface.velocity_eps`` (m/s).
+    pressure: ``surface.pressure``; velocity_eps: ``surface.velocity_eps`` (m/s); model:
+    ``surface.model`` (`PUSH_MODELS`).
     """
     verts = tuple((float(v[0]), float(v[1])) for v in vertices)
     if inertia is None:
@@ -877,5 +910,6 @@ def push_scenario(
                 )
             ),
             pressure,
+            model,
         ),
     )

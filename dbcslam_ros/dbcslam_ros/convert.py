@@ -290,21 +290,10 @@ def estimate_messages(
     Never emits NaN: a non-finite estimate raises ValueError (the node then skips publishing
     and counts it), because a silently wrong estimate is worse than a missing one.
     """
-    for name, arr in (
-        ("pose", est.pose),
-        ("pose_cov", est.pose_cov),
-        ("twist", est.twist),
-        ("twist_cov", est.twist_cov),
-        ("modes", est.modes),
-        ("friction", est.friction),
-    ):
-        if not np.all(np.isfinite(arr)):
-            msg = f"estimate field {name} has non-finite values at step {est.step}"
-            raise ValueError(msg)
-    for pair, probs in enumerate(est.friction_map.probs):
-        if not np.all(np.isfinite(probs)):
-            msg = f"friction map of pair {pair} has non-finite values at step {est.step}"
-            raise ValueError(msg)
+    bad = est.non_finite_field()
+    if bad is not None:
+        msg = f"estimate field {bad} has non-finite values at step {est.step}"
+        raise ValueError(msg)
     x, y, yaw = (float(v) for v in est.pose)
     pwc_cls = rt.message_class("geometry_msgs/msg/PoseWithCovarianceStamped")
     pwc = rt.message_class("geometry_msgs/msg/PoseWithCovariance")

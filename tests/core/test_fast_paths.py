@@ -110,9 +110,11 @@ def test_map_history_ring_buffer_order_and_eviction() -> None:
     evicted = []
     for k in range(7):
         s = np.full((n_p, filt.n_c), float(k))
-        old = filt._hist_push(fp, s, np.ones((n_p, filt.n_c)))
+        pk = filt.n_pairs * filt._k_max
+        row = np.concatenate([fp.reshape(n_p, pk), s, np.ones((n_p, filt.n_c))], axis=1)
+        old = filt.particles.history.push(row)
         evicted.append(None if old is None else float(old[0, filt.n_pairs * filt._k_max]))
-        entries = filt._hist_entries()
+        entries = filt.particles.history.entries()
         steps = entries[:, 0, filt.n_pairs * filt._k_max]
         assert steps.tolist() == [float(j) for j in range(max(0, k - 2), k + 1)]
     assert evicted == [None, None, None, 0.0, 1.0, 2.0, 3.0]

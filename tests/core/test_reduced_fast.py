@@ -17,9 +17,11 @@ from hypothesis import strategies as st
 from reduced_reference import solve_reduced_reference
 
 from dbcslam_core.contact_modes import (
+    REDUCED_BACKENDS,
     ContactLayout,
     Mode,
     _solve_small,
+    enumerate_hypotheses,
     geometric_feasible,
     solve_reduced,
 )
@@ -27,15 +29,18 @@ from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import SolverError
 from dbcslam_core.geometry import contact_coordinates, contact_kinematics
 from dbcslam_core.observation import (
+    LinearObservation,
     _cho_solve_small,
     _chol_entries,
     _cholesky_small,
+    _proposal_all_observed,
     gaussian_log_density,
 )
 from dbcslam_core.scenario import edge_scenario, gripper_scenario
 
 GRIPPER = gripper_scenario()
 EDGE = edge_scenario()
+BACKENDS = sorted(REDUCED_BACKENDS)
 
 
 def _problem(seed: int, n_p: int, n_k: int, p_contact: float):  # type: ignore[no-untyped-def]
@@ -79,12 +84,15 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return np.asarray((rows <= 3) & geometric_feasible(layout, modes, phi))
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.25, 0.5]))
-def test_solve_reduced_matches_padded_reference(seed: int, p_contact: float) -> None:
+def test_solve_reduced_matches_padded_reference(backend: str, seed: int, p_contact: float) -> None:
     args, kwargs = _problem(seed, 12, 4, p_contact)
     for sens in (False, True):
-        new = solve_reduced(*args, impulse_sensitivity=sens, **kwargs)  # type: ignore[arg-type]
+        new = solve_reduced(  # type: ignore[arg-type]
+            *args, impulse_sensitivity=sens, backend=backend, **kwargs
+        )
         ref = solve_reduced_reference(*args, impulse_sensitivity=sens, **kwargs)
         lam = np.abs(ref.ln).max(-1) + np.abs(ref.lt).max(-1)  # impulse scale (N s)
         # well-posed and well-conditioned: near-singular sliding systems (Painleve-like,
@@ -105,18 +113,20 @@ def test_solve_reduced_matches_padded_reference(seed: int, p_contact: float) -> 
             )
 
 
-def test_friction_independent_entries_solved_once_are_identical_across_mu() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_friction_independent_entries_solved_once_are_identical_across_mu(backend: str) -> None:
     """Assignments without sliding contacts do not depend on mu: same solution per beta."""
     args, kwargs = _problem(3, 20, 3, 0.3)
     modes = np.where(args[0] >= Mode.SLIDING_POS, Mode.STICKING, args[0])
-    sol = solve_reduced(modes, args[1], **kwargs)  # type: ignore[arg-type]
+    sol = solve_reduced(modes, args[1], backend=backend, **kwargs)  # type: ignore[arg-type]
     for b in (1, 2):
         np.testing.assert_array_equal(sol.v_next[:, b], sol.v_next[:, 0])
         np.testing.assert_array_equal(sol.ln[:, b], sol.ln[:, 0])
         np.testing.assert_array_equal(sol.response[:, b], sol.response[:, 0])
 
 
-def test_solve_reduced_edge_point_mass_matches_reference() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_solve_reduced_edge_point_mass_matches_reference(backend: str) -> None:
     model = PlanarModel(EDGE)
     rng = np.random.default_rng(1)
     q = np.column_stack([rng.uniform(0, 2, 40), rng.normal(0, 1e-3, 40)])
@@ -135,10 +145,95 @@ def test_solve_reduced_edge_point_mass_matches_reference() -> None:
         "dt": EDGE.dt,
         "groups": [0],
     }
-    new = solve_reduced(modes, v[:, None, None], **common)  # type: ignore[arg-type]
+    new = solve_reduced(  # type: ignore[arg-type]
+        modes, v[:, None, None], backend=backend, **common
+    )
     ref = solve_reduced_reference(modes, v[:, None, None], **common)
     for f in ("v_next", "ln", "lt", "score", "response", "gap_rate", "vt"):
         np.testing.assert_allclose(getattr(new, f), getattr(ref, f), rtol=1e-10, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.3, 0.6]))
+def test_compiled_backend_equals_numpy_backend(seed: int, p_contact: float) -> None:
+    """The compiled kernel and the numpy path solve the same equations: equal to round-off
+    on every well-posed, well-conditioned assignment, with and without impulse sensitivity."""
+    args, kwargs = _problem(seed, 40, 4, p_contact)
+    for sens in (False, True):
+        a = solve_reduced(  # type: ignore[arg-type]
+            *args, impulse_sensitivity=sens, backend="numpy", **kwargs
+        )
+        b = solve_reduced(  # type: ignore[arg-type]
+            *args, impulse_sensitivity=sens, backend="compiled", **kwargs
+        )
+        lam = np.abs(a.ln).max(-1) + np.abs(a.lt).max(-1)
+        ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
+        assert ok.any()
+        for f in ("v_next", "response", "gap_rate", "vt"):
+            np.testing.assert_allclose(getattr(b, f)[ok], getattr(a, f)[ok], atol=1e-9)
+        for f in ("ln", "lt"):
+            err = np.abs(getattr(a, f) - getattr(b, f)).max(-1)
+            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
+        np.testing.assert_allclose(b.score[ok], a.score[ok], rtol=1e-8, atol=1e-9)
+        if sens:
+            assert a.impulse_response is not None and b.impulse_response is not None
+            np.testing.assert_allclose(
+                b.impulse_response[ok], a.impulse_response[ok], rtol=1e-7, atol=1e-7
+            )
+
+
+@pytest.mark.parametrize("sens", [False, True])
+def test_compiled_backend_full_mass_matrix(sens: bool) -> None:
+    """Full (effective) mass matrices per (entry, friction) element, as the push scenario's
+    implicit support friction gives them: both backends agree."""
+    args, kwargs = _problem(11, 30, 3, 0.3)
+    rng = np.random.default_rng(11)
+    n = args[0].shape[0]
+    x = rng.normal(size=(n, 3, 3, 5)) * 0.1
+    mass = np.diag(PlanarModel(GRIPPER).mass_diag) + x @ np.swapaxes(x, -1, -2)  # (N, 3, 3, 3)
+    vf = np.broadcast_to(args[1], (n, 3, 3)) + rng.normal(size=(n, 3, 3)) * 0.01
+    out = [
+        solve_reduced(  # type: ignore[arg-type]
+            args[0], vf, mass=mass, impulse_sensitivity=sens, backend=be, **kwargs
+        )
+        for be in ("numpy", "compiled")
+    ]
+    lam = np.abs(out[0].ln).max(-1) + np.abs(out[0].lt).max(-1)
+    ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
+    assert ok.any()
+    for f in ("v_next", "response", "score"):
+        np.testing.assert_allclose(
+            getattr(out[1], f)[ok], getattr(out[0], f)[ok], rtol=1e-8, atol=1e-9
+        )
+
+
+def test_compiled_backend_reports_singular_systems() -> None:
+    """Two identical sticking contacts on one dof: the kernel's zero pivot is a SolverError
+    naming how many systems failed, never a silent inf."""
+    kw = {
+        "inv_mass": np.array([1.0, 1.0]),
+        "jn": np.array([[[0.0, 1.0], [0.0, 1.0]]]),
+        "jt": np.array([[[1.0, 0.0], [1.0, 0.0]]]),
+        "phi": np.zeros((1, 2)),
+        "vn_env": np.zeros((1, 2)),
+        "vt_env": np.zeros((1, 2)),
+        "mu": np.array([0.5, 0.5]),
+        "dt": 0.01,
+    }
+    with pytest.raises(SolverError, match="singular"):
+        solve_reduced(  # type: ignore[arg-type]
+            np.array([[Mode.STICKING, Mode.STICKING]]),
+            np.zeros((1, 2)),
+            eps_rel=0.0,
+            backend="compiled",
+            **kw,
+        )
+
+
+def test_unknown_backend_is_refused() -> None:
+    args, kwargs = _problem(0, 2, 1, 0.5)
+    with pytest.raises(SolverError, match="backend must be one of"):
+        solve_reduced(*args, backend="fortran", **kwargs)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 4])
@@ -151,7 +246,8 @@ def test_solve_small_matches_linalg_solve(k: int) -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(
-    entries=st.lists(st.floats(-1e3, 1e3), min_size=4, max_size=4),
+    entries=st.lists(st.floats(-1e3, 1e3), min_size=4, max_size=4)
+    | st.lists(st.floats(-1e-170, 1e-170), min_size=4, max_size=4),
     rhs=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
 )
 def test_cramer_2x2_is_accurate(entries: list[float], rhs: list[float]) -> None:
@@ -161,7 +257,8 @@ def test_cramer_2x2_is_accurate(entries: list[float], rhs: list[float]) -> None:
     if not np.isfinite(cond) or cond > 1e8:
         return
     x = _solve_small(a, b)
-    np.testing.assert_allclose(a @ x, b, atol=1e-9 * (1.0 + np.abs(a).max() * np.abs(x).max()))
+    scale = np.abs(b).max() + np.abs(a).max() * np.abs(x).max()
+    np.testing.assert_allclose(a @ x, b, atol=1e-9 * scale)
 
 
 def test_solve_small_raises_on_singular() -> None:
@@ -197,3 +294,72 @@ def test_contact_coordinates_equal_kinematics(scenario) -> None:  # type: ignore
     np.testing.assert_array_equal(
         contact_coordinates(scenario, q, env), contact_kinematics(scenario, q, env).s
     )
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.sampled_from([2, 3]))
+def test_compiled_proposal_equals_numpy_proposal(seed: int, n: int) -> None:
+    """The compiled Kalman-form proposal update and the entry-by-entry numpy one agree to
+    round-off (log predictive, posterior mean and covariance of v')."""
+    rng = np.random.default_rng(seed)
+    m = 50
+    x = rng.normal(size=(m, 4, n, n + 1)) * rng.uniform(1e-3, 1.0)
+    sv = x @ np.swapaxes(x, -1, -2)
+    q = rng.normal(size=(m, 1, n))
+    vh = rng.normal(size=(m, 4, n))
+    var = rng.uniform(1e-6, 1e-2, n)
+    obs = LinearObservation(
+        index=np.arange(n),
+        value=rng.normal(size=n),
+        var=var,
+        angular=np.arange(n) == 2,
+    )
+    s_diag = np.diag(var + 1e-8)
+    out = [
+        _proposal_all_observed(q, vh, sv, dt=0.01, obs=obs, s_diag=s_diag, compiled=c)
+        for c in (False, True)
+    ]
+    for a, b in zip(out[0], out[1], strict=True):
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    threshold=st.sampled_from([1e-3, 1e-2, 0.05]),
+    max_h=st.sampled_from([4, 8, 32]),
+    n_p=st.sampled_from([3, 40]),
+)
+def test_compiled_enumeration_equals_numpy(
+    seed: int, threshold: float, max_h: int, n_p: int
+) -> None:
+    """The compiled hypothesis enumeration keeps the same hypotheses in the same order as
+    the numpy path (continuous random marginals: no exact ties), with the gripper's
+    geometric exclusions and gaps."""
+    rng = np.random.default_rng(seed)
+    layout = ContactLayout(
+        feature_vertex=tuple(c.vertex for c in GRIPPER.potential_contacts),
+        obstacle=tuple(c.obstacle for c in GRIPPER.potential_contacts),
+        n_vertices=len(GRIPPER.body.vertices),
+    )
+    c = len(GRIPPER.potential_contacts)
+    mg = rng.dirichlet(np.full(4, 0.3), size=(n_p, c))
+    phi = rng.uniform(-1e-3, 3e-3, size=(n_p, c))
+    out = [
+        enumerate_hypotheses(mg, threshold, max_h, layout=layout, phi=phi, compiled=flag)
+        for flag in (False, True)
+    ]
+    np.testing.assert_array_equal(out[1].valid, out[0].valid)
+    np.testing.assert_array_equal(out[1].modes[out[0].valid], out[0].modes[out[0].valid])
+    np.testing.assert_array_equal(out[1].log_prior, out[0].log_prior)
+
+
+def test_compiled_enumeration_truncated_path_keeps_the_most_probable() -> None:
+    """Many particles and contacts (the argpartition pre-selection of the numpy path): the
+    same hypotheses when there are no ties."""
+    rng = np.random.default_rng(5)
+    mg = rng.dirichlet(np.full(4, 1.0), size=(800, 6))
+    a, b = (enumerate_hypotheses(mg, 1e-3, 32, compiled=flag) for flag in (False, True))
+    np.testing.assert_array_equal(b.valid, a.valid)
+    np.testing.assert_array_equal(b.modes[a.valid], a.modes[a.valid])
+    np.testing.assert_array_equal(b.log_prior, a.log_prior)

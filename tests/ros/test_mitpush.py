@@ -753,3 +753,17 @@ def test_pooled_fit_near_the_hand_constants_on_the_full_subset(shape: str) -> No
     ref_cost, _, _ = ma._reference_stats(evidence, mp.convex_hull(outline.file_vertices), ref)
     assert fit.cost <= ref_cost * 1.0001
     assert fit.median_gap < 0.001
+
+
+@pytest.mark.parametrize("model", ["dynamic", "quasi_static"])
+def test_push_model_flag_sets_the_scenario_model(tmp_path: Path, model: str) -> None:
+    out = tmp_path / model
+    assert main(["import-mitpush", str(FILES[1]), "-o", str(out), "--push-model", model]) == 0
+    topics = _read_bag(out / _stem(FILES[1]))
+    scenario = Scenario.from_yaml(topics["/scenario"][0][1].data)
+    assert scenario.surface.push_model == model
+
+
+def test_push_model_is_validated() -> None:
+    with pytest.raises(mp.MitPushError, match="push_model"):
+        mp.ImportConfig(push_model="quasistatic")

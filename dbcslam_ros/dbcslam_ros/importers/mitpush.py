@@ -88,6 +88,7 @@ from dbcslam_core.mass_properties import (
     plate_properties,
 )
 from dbcslam_core.polygon import convex_hull
+from dbcslam_core.scenario import PUSH_MODELS
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -145,6 +146,9 @@ residual at constant speed (median 21 um); see the module docstring."""
 MOVING_SPEED: float = 0.003
 """Object speed (m/s) above which the object counts as moving (pushed, so in contact)."""
 STALE_FT_FRACTION: float = 0.5
+#: Push model written to the imported scenarios (``surface.model``); see the README section
+#: "Measured data" for the measurement that chose it.
+DEFAULT_PUSH_MODEL: str = "dynamic"
 """An F/T stream with fewer distinct readings than this fraction of its samples is stale."""
 ONSET_DISPLACEMENT: float = 0.0002
 """Object displacement (m) from its initial position that marks the start of its motion."""
@@ -515,7 +519,8 @@ class ImportConfig:
     pose, with 0.5 mm / 0.005 rad it rejects 17 of 105 as outliers (ESS 1.5).
     density (kg/m^3) and thickness (m): the plate the mass and inertia are computed from
     (:func:`mass_properties`). mass (kg) / inertia (kg m^2): given values instead (None:
-    computed; a mass alone scales the computed inertia with it).
+    computed; a mass alone scales the computed inertia with it). push_model: the scenario's
+    ``surface.model`` (``dynamic`` or ``quasi_static``, `dbcslam_core.scenario.PUSH_MODELS`).
     """
 
     dt: float = 0.01
@@ -532,8 +537,12 @@ class ImportConfig:
     thickness: float = MIT_PUSH_THICKNESS
     mass: float | None = None
     inertia: float | None = None
+    push_model: str = DEFAULT_PUSH_MODEL
 
     def __post_init__(self) -> None:
+        if self.push_model not in PUSH_MODELS:
+            msg = f"push_model must be one of {list(PUSH_MODELS)}, got {self.push_model!r}"
+            raise MitPushError(msg)
         for name in ("density", "thickness", "mass", "inertia"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0.0):

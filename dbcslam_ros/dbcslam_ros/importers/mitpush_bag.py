@@ -89,6 +89,7 @@ def make_scenario(series: PushSeries, config: ImportConfig) -> Scenario:
         position_noise=config.position_std,
         yaw_noise=config.yaw_std,
         support_pair="surface",
+        model=config.push_model,
     )
     cands = (tuple(config.pusher_candidates), tuple(config.surface_candidates))
     friction = FrictionSpec(

@@ -67,7 +67,7 @@ from dbcslam_ros.convert import (
     yaw_to_quaternion,
 )
 from dbcslam_ros.errors import ParameterError
-from dbcslam_ros.node.session import FilterSession, StampedEstimate
+from dbcslam_ros.node.session import WINDOW, FilterSession, StampedEstimate
 from dbcslam_ros.ros_context import init_ros
 
 __all__ = [
@@ -128,7 +128,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 #: Default particle count per scenario kind (parameter ``particles`` = -1): chosen so that on
 #: an idle 2-core machine the filter keeps up with the simulator at 100 Hz (one core each)
 #: with margin; measured with ``python -m dbcslam_research.bench_live --offline`` (README).
-LIVE_PARTICLES: dict[str, int] = {"edge": 200, "gripper": 80, "push": 50}
+LIVE_PARTICLES: dict[str, int] = {"edge": 500, "gripper": 80, "push": 200}
 #: Live default for a kind not in LIVE_PARTICLES.
 LIVE_PARTICLES_OTHER = 100
 
@@ -140,17 +140,6 @@ def live_particles(kind: str) -> int:
 
 #: A filter step slower than this (s) is logged as a warning.
 SLOW_STEP_S = 0.5
-
-#: Poses in a row outside the gate (accepted ones included) after which the filter is
-#: considered lost and re-initialised at the next pose (reason `diverged`).
-DIVERGED_AFTER = 12
-
-#: Number of recent processed poses the step-time and latency statistics cover.
-WINDOW = 1000
-
-#: Poses in a row rejected by the gate; the next one is accepted (a persistent deviation is
-#: a change of motion the filter must follow, not a sensor outlier).
-MAX_CONSECUTIVE_OUTLIERS = 3
 
 MODE_COLOURS = (
     (0.6, 0.6, 0.6),  # separated: grey
@@ -264,16 +253,10 @@ class FilterCore:
         self.received = 0
         self.published = 0
         self.not_published: Counter[str] = Counter()
-        self.backlog_dropped = 0
-        # statistics over the last WINDOW processed poses
-        self.step_times: deque[float] = deque(maxlen=WINDOW)
-        self.model_steps: deque[int] = deque(maxlen=WINDOW)
+        # latency from pose receipt to publication over the last WINDOW estimates (the
+        # session keeps the filter's own statistics)
         self.latencies: deque[float] = deque(maxlen=WINDOW)
-        self.last_estimate: StampedEstimate | None = None
         self._pending: tuple[PoseReading, float] | None = None
-        self._dropped_since_step = False
-        self._outliers_in_row = 0
-        self._exceed_in_row = 0
         self._rate_window: deque[float] = deque()
         self._last_marker_ns: int | None = None
         path = str(self.params["scenario_file"])
@@ -283,6 +266,16 @@ class FilterCore:
             except (OSError, DbcSlamError) as err:
                 msg = f"cannot load scenario_file {path!r}: {err}"
                 raise ParameterError(msg) from err
+
+    @property
+    def last_estimate(self) -> StampedEstimate | None:
+        """The last estimate the session produced (None before one / after a reset)."""
+        return None if self.session is None else self.session.last_estimate
+
+    @property
+    def backlog_dropped(self) -> int:
+        """Poses dropped unprocessed from the depth-one queue (the filter was busy)."""
+        return 0 if self.session is None else self.session.backlog_dropped
 
     def callbacks(self) -> dict[str, Callable[[Any], None]]:
         """``{input topic: method}`` in :data:`INPUT_TOPICS` order."""
@@ -320,8 +313,9 @@ class FilterCore:
             extensions=self.extensions,
             reset_after_s=float(self.params["reset_after"]),
             max_gap_s=float(self.params["max_gap"]),
+            gating_threshold=float(self.params["gating_threshold"]),
+            catch_up_steps=int(self.params["catch_up_steps"]),
         )
-        self.last_estimate = None
         self._pending = None
         self.log.info(
             f"configured for scenario '{scenario.kind}': contacts {list(scenario.contacts)}, "
@@ -405,95 +399,35 @@ class FilterCore:
             self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
             return
         if self._pending is not None:
-            self.session.reject("backlog")
-            self.backlog_dropped += 1
-            self._dropped_since_step = True
+            self.session.note_backlog_drop()
         self._pending = (reading, received)
 
     def process_pending(self) -> None:
-        """Run the filter on the queued pose (timer callback, after the inputs were taken)."""
+        """Run the filter on the queued pose (timer callback, after the inputs were taken):
+        the session decides (`FilterSession.process_pose`), the node logs and publishes."""
         if self._pending is None or self.session is None:
             return
         reading, received = self._pending
         self._pending = None
-        session = self.session
-        c = session.correct(reading)  # the gate compares like with like (model sensor effects)
-        if self._gated(c.x, c.y, c.yaw, c.stamp_ns):
-            self._exceed_in_row += 1
-            if self._exceed_in_row >= DIVERGED_AFTER:
-                # Even accepted poses did not pull the estimate back: the filter is lost.
-                self._reject("diverged", "estimate far from the observations: filter reset")
-                session.reset(keep_until_ns=reading.stamp_ns)
-                self.last_estimate = None
-                self._exceed_in_row = 0
-                self._outliers_in_row = 0
-                return
-            if self._outliers_in_row < MAX_CONSECUTIVE_OUTLIERS:
-                self._outliers_in_row += 1
-                self._dropped_since_step = True  # the gap it leaves is data we had
-                self._reject("outlier", "rejected /object/pose: outside the gating threshold")
-                return
-            # Persistent: the motion changed, not the sensor. Let the filter follow.
-            self.log.info(
-                f"{self._outliers_in_row} poses in a row outside the gate: accepting",
-                throttle_duration_sec=2.0,
-            )
-        else:
-            self._exceed_in_row = 0
-        self._outliers_in_row = 0
-        resets = session.resets
-        # Catch up only over gaps of poses we received but did not use (own backlog);
-        # a gap in the data itself is run in full.
-        catch_up = int(self.params["catch_up_steps"]) if self._dropped_since_step else None
-        self._dropped_since_step = False
-        try:
-            results = session.add_pose(reading, max_steps=catch_up)
-        except InputRejected as err:
-            self.log.warning(f"rejected /object/pose: {err}", throttle_duration_sec=2.0)
-            return
-        except Exception as err:
-            self._reject("filter_error", f"filter step failed ({err!r}); filter reset")
-            session.reset(keep_until_ns=reading.stamp_ns)
-            self.last_estimate = None
-            return
-        if session.resets != resets:
-            self.last_estimate = None
-            self.log.info(
-                f"filter reset (jump in time at stamp {reading.stamp_ns * 1e-9:.3f} s)",
-                throttle_duration_sec=1.0,
-            )
-        for res in results:
+        outcome = self.session.process_pose(reading)
+        if outcome.rejected == "nan_estimate":
+            self.not_published["nan_estimate"] += 1
+        if outcome.message:
+            if outcome.level == "info":
+                self.log.info(outcome.message, throttle_duration_sec=1.0)
+            else:
+                self.log.warning(outcome.message, throttle_duration_sec=2.0)
+        for res in outcome.estimates:
             self._publish(res, received)
-
-    def _gated(self, x: float, y: float, yaw: float, stamp_ns: int) -> bool:
-        gate = float(self.params["gating_threshold"])
-        last = self.last_estimate
-        if gate <= 0.0 or last is None or self.scenario is None:
-            return False
-        dt = (stamp_ns - last.stamp_ns) * 1e-9
-        if not 0.0 <= dt <= 0.5:
-            return False  # time jumps are the session's business
-        est = last.estimate
-        pred = est.pose[:2] + est.twist[:2] * dt
-        noise = self.scenario.noise.position
-        cov = est.pose_cov[:2, :2] + est.twist_cov[:2, :2] * dt * dt + noise**2 * np.eye(2)
-        r = np.array([x, y]) - pred
-        try:
-            d2 = float(r @ np.linalg.solve(cov, r))
-        except np.linalg.LinAlgError:
-            return False
-        return bool(not np.isfinite(d2) or d2 > gate * gate)  # inf: estimate blew up
 
     # -- outputs -----------------------------------------------------------------------------
     def _publish(self, res: StampedEstimate, received: float) -> None:
         assert self.scenario is not None and self.session is not None
-        try:
+        try:  # the session screened the estimate; a failure here is a conversion bug
             msgs = estimate_messages(res.estimate, self.scenario, res.stamp_ns, self.frame)
         except ValueError as err:
-            self.not_published["nan_estimate"] += 1
-            self._reject("nan_estimate", f"not publishing: {err}; filter reset")
-            self.session.reset(keep_until_ns=res.stamp_ns)
-            self.last_estimate = None
+            self.not_published["conversion"] += 1
+            self.log.error(f"not publishing: {err}", throttle_duration_sec=5.0)
             return
         for topic, m in msgs.items():  # pose first (dict order)
             self._publish_msg(topic, m)
@@ -512,9 +446,6 @@ class FilterCore:
                 throttle_duration_sec=5.0,
             )
         self.published += 1
-        self.step_times.append(res.step_time_s)
-        self.model_steps.append(res.model_steps)
-        self.last_estimate = res
 
     def _marker_due(self, stamp_ns: int) -> bool:
         """At most one marker message per ``marker_period`` of stamp time (bag time in
@@ -575,7 +506,7 @@ class FilterCore:
                     color=colour(r=1.0, g=1.0, b=0.0, a=1.0),
                 )
             )
-        q, w = self.session.particles()
+        q, w = est.particle_poses, est.particle_weights
         n = min(int(self.params["marker_particles"]), len(q))
         idx = np.argsort(-w)[:n]
         markers.append(
@@ -654,9 +585,9 @@ class FilterCore:
             est = self.last_estimate.estimate
             values["ess"] = f"{est.ess:.1f}"
             values["live_hypotheses"] = f"{est.live_hypotheses:.2f}"
-        if self.step_times:
-            times = np.asarray(self.step_times) * 1e3
-            steps = np.asarray(self.model_steps, dtype=np.float64)
+        if self.session is not None and self.session.step_times:
+            times = np.asarray(self.session.step_times) * 1e3
+            steps = np.asarray(self.session.model_steps, dtype=np.float64)
             values["step_time_ms_mean"] = f"{times.mean():.3f}"
             values["step_time_ms_p95"] = f"{np.percentile(times, 95):.3f}"
             values["step_time_ms_max"] = f"{times.max():.3f}"

@@ -36,6 +36,13 @@ observation into filter steps. Rules (documented in the README):
   accuracy while it is behind.
 * Bad messages raise :class:`~dbcslam_ros.convert.InputRejected` before they touch the filter;
   the session counts them per reason and stays usable.
+* `process_pose` is the one call for a pose (live node and offline tools): gating against
+  the last estimate (`gating_threshold` Mahalanobis distance; at most
+  `MAX_CONSECUTIVE_OUTLIERS` rejected in a row, then the motion changed and the pose is
+  taken; `DIVERGED_AFTER` poses in a row outside the gate reset the filter), catch-up after
+  poses dropped from the node's queue (`note_backlog_drop`), the filter steps, and a reset on
+  a failed step or a non-finite estimate. It returns a :class:`PoseOutcome`; the session
+  keeps the statistics (counts per reason, step times).
 * Observation-side model extensions (from a model file of `dbcslam discrepancy`): the core
   model applies the dynamic effects itself; the session applies the sensor effects to every
   pose before the filter sees it. ``sensor_bias`` (x, y, yaw): the bias is subtracted from the
@@ -61,9 +68,28 @@ from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.scenario import Disk, Scenario
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
 
-__all__ = ["FilterSession", "StampedEstimate", "observation_correction"]
+__all__ = [
+    "DIVERGED_AFTER",
+    "MAX_CONSECUTIVE_OUTLIERS",
+    "WINDOW",
+    "FilterSession",
+    "PoseOutcome",
+    "StampedEstimate",
+    "observation_correction",
+]
 
 NS = 1_000_000_000
+
+#: Poses in a row outside the gate (accepted ones included) after which the filter is
+#: considered lost and re-initialised at the next pose (reason `diverged`).
+DIVERGED_AFTER = 12
+
+#: Number of recent processed poses the step-time statistics cover.
+WINDOW = 1000
+
+#: Poses in a row rejected by the gate; the next one is accepted (a persistent deviation is
+#: a change of motion the filter must follow, not a sensor outlier).
+MAX_CONSECUTIVE_OUTLIERS = 3
 
 
 def observation_correction(
@@ -94,6 +120,19 @@ class StampedEstimate:
     estimate: Estimate
     step_time_s: float
     model_steps: int = 1
+
+
+@dataclass(frozen=True)
+class PoseOutcome:
+    """What one pose did (`FilterSession.process_pose`): the estimates it produced (0 or 1),
+    the reason it was rejected (None: used), whether the filter was reset, and a message
+    for the log (``level`` ``warning`` or ``info``; empty: nothing to say)."""
+
+    estimates: tuple[StampedEstimate, ...] = ()
+    rejected: str | None = None
+    reset: bool = False
+    message: str = ""
+    level: str = "warning"
 
 
 @dataclass
@@ -187,6 +226,8 @@ class FilterSession:
         reset_after_s: float = 0.5,
         max_gap_s: float = 1.0,
         force_max_age_s: float | None = None,
+        gating_threshold: float = 0.0,
+        catch_up_steps: int | None = None,
     ) -> None:
         self.scenario = scenario
         self.config = config
@@ -213,6 +254,16 @@ class FilterSession:
         self._jump_chain: list[int] = []  # stamps of a not yet confirmed time jump
         self._filter: DbcSlamFilter | None = None
         self._new_filter()
+        # process_pose: gating, catch-up, statistics
+        self.gating_threshold = float(gating_threshold)
+        self.catch_up_steps = catch_up_steps
+        self.last_estimate: StampedEstimate | None = None
+        self.backlog_dropped = 0
+        self.step_times: deque[float] = deque(maxlen=WINDOW)
+        self.model_steps: deque[int] = deque(maxlen=WINDOW)
+        self._dropped_since_step = False
+        self._outliers_in_row = 0
+        self._exceed_in_row = 0
 
     # -- inputs ---------------------------------------------------------------------------
     def add_wrench(self, reading: WrenchReading) -> None:
@@ -239,6 +290,99 @@ class FilterSession:
     def reject(self, reason: str) -> None:
         """Count an input rejected before it reached the session (e.g. failed conversion)."""
         self.rejected[reason] += 1
+
+    def note_backlog_drop(self) -> None:
+        """A pose was dropped from the node's queue unprocessed (the filter was busy): the
+        next pose catches up over its gap (`catch_up_steps`)."""
+        self.rejected["backlog"] += 1
+        self.backlog_dropped += 1
+        self._dropped_since_step = True
+
+    def process_pose(self, reading: PoseReading) -> PoseOutcome:
+        """The whole handling of one pose: gate, catch-up, filter steps, statistics, resets
+        (module docstring). Never raises for bad data or a failed filter step."""
+        verdict = self._gate(reading)
+        if isinstance(verdict, PoseOutcome):
+            return verdict
+        # Catch up only over gaps of poses we received but did not use (own backlog);
+        # a gap in the data itself is run in full.
+        catch_up = self.catch_up_steps if self._dropped_since_step else None
+        self._dropped_since_step = False
+        resets = self.resets
+        try:
+            results = self.add_pose(reading, max_steps=catch_up)
+        except InputRejected as err:
+            return PoseOutcome(rejected=err.reason, message=f"rejected /object/pose: {err}")
+        except Exception as err:  # a failed step must not stop the node: start over
+            text = f"filter step failed ({err!r}); filter reset"
+            return self._failed("filter_error", text, reading)
+        reset = self.resets != resets
+        if reset:
+            self.last_estimate = None
+            verdict = f"filter reset (jump in time at stamp {reading.stamp_ns * 1e-9:.3f} s)"
+        for res in results:
+            bad = res.estimate.non_finite_field()
+            if bad is not None:
+                text = f"not publishing: estimate field {bad} is not finite; filter reset"
+                return self._failed("nan_estimate", text, reading)
+            self.step_times.append(res.step_time_s)
+            self.model_steps.append(res.model_steps)
+            self.last_estimate = res
+        return PoseOutcome(tuple(results), reset=reset, message=verdict, level="info")
+
+    def _failed(self, reason: str, text: str, reading: PoseReading) -> PoseOutcome:
+        """Count the reason, reset the filter (keeping the inputs up to the pose)."""
+        self.rejected[reason] += 1
+        self.reset(keep_until_ns=reading.stamp_ns)
+        self.last_estimate = None
+        return PoseOutcome(rejected=reason, reset=True, message=text)
+
+    def _gate(self, reading: PoseReading) -> PoseOutcome | str:
+        """Gating against the last estimate (module docstring): an outcome (rejected or
+        reset), or a note (maybe empty) when the pose is to be used."""
+        c = self.correct(reading)  # the gate compares like with like (model sensor effects)
+        note = ""
+        if self._outside_gate(c):
+            self._exceed_in_row += 1
+            if self._exceed_in_row >= DIVERGED_AFTER:
+                # Even accepted poses did not pull the estimate back: the filter is lost.
+                self._exceed_in_row = 0
+                self._outliers_in_row = 0
+                text = "estimate far from the observations: filter reset"
+                return self._failed("diverged", text, reading)
+            if self._outliers_in_row < MAX_CONSECUTIVE_OUTLIERS:
+                self._outliers_in_row += 1
+                self._dropped_since_step = True  # the gap it leaves is data we had
+                self.rejected["outlier"] += 1
+                text = "rejected /object/pose: outside the gating threshold"
+                return PoseOutcome(rejected="outlier", message=text)
+            # Persistent: the motion changed, not the sensor. Let the filter follow.
+            note = f"{self._outliers_in_row} poses in a row outside the gate: accepting"
+        else:
+            self._exceed_in_row = 0
+        self._outliers_in_row = 0
+        return note
+
+    def _outside_gate(self, c: PoseReading) -> bool:
+        """Whether a (corrected) pose lies outside the gate around the last estimate's
+        prediction (Mahalanobis distance with the estimate's and the sensor's covariance)."""
+        gate = self.gating_threshold
+        last = self.last_estimate
+        if gate <= 0.0 or last is None:
+            return False
+        dt = (c.stamp_ns - last.stamp_ns) * 1e-9
+        if not 0.0 <= dt <= 0.5:
+            return False  # time jumps are handled by the stamp rules
+        est = last.estimate
+        pred = est.pose[:2] + est.twist[:2] * dt
+        noise = self.scenario.noise.position
+        cov = est.pose_cov[:2, :2] + est.twist_cov[:2, :2] * dt * dt + noise**2 * np.eye(2)
+        r = np.array([c.x, c.y]) - pred
+        try:
+            d2 = float(r @ np.linalg.solve(cov, r))
+        except np.linalg.LinAlgError:
+            return False
+        return bool(not np.isfinite(d2) or d2 > gate * gate)  # inf: estimate blew up
 
     def add_pose(
         self, reading: PoseReading, max_steps: int | None = None
@@ -388,11 +532,8 @@ class FilterSession:
         """Particle configurations q (P, nq) and normalised weights (P,) (for markers)."""
         flt = self._filter
         assert flt is not None
-        if getattr(flt, "q", None) is None:
-            return np.zeros((0, self.scenario.nq)), np.zeros(0)
-        log_w = np.asarray(flt.log_w, dtype=np.float64)
-        w = np.exp(log_w - np.max(log_w))
-        return np.asarray(flt.q, dtype=np.float64), w / np.sum(w)
+        q, w = flt.weighted_particles()
+        return np.asarray(q, dtype=np.float64), np.asarray(w, dtype=np.float64)
 
     def last_joints(self) -> tuple[float, ...]:
         """Latest joint positions received (scenario.joints order), () if none."""

@@ -113,6 +113,8 @@ class EvalOptions:
     candidates written to the scenarios (None: the importer's defaults, 0.1 0.2 0.3; the
     surface default here is :data:`SURFACE_CANDIDATES`). reuse: re-evaluate
     the replays already in ``work`` (a previous run's) instead of importing and replaying.
+    push_model: the scenarios' ``surface.model`` (None: the importer's default,
+    :data:`dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL`).
     """
 
     data: Path = DEFAULT_DATA
@@ -129,6 +131,7 @@ class EvalOptions:
     pusher_candidates: tuple[float, ...] | None = None
     surface_candidates: tuple[float, ...] | None = SURFACE_CANDIDATES
     reuse: bool = False
+    push_model: str | None = None
 
 
 def resolve_data(data: str | Path) -> list[Path]:
@@ -215,6 +218,8 @@ def _import_config(opts: EvalOptions) -> Any:
         cands["pusher_candidates"] = tuple(opts.pusher_candidates)
     if opts.surface_candidates is not None:
         cands["surface_candidates"] = tuple(opts.surface_candidates)
+    if opts.push_model is not None:
+        cands["push_model"] = opts.push_model
     return ImportConfig(
         noise_position=opts.noise_position, noise_yaw=opts.noise_yaw, seed=opts.seed, **cands
     )
@@ -748,6 +753,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument(
+        "--push-model",
+        choices=("dynamic", "quasi_static"),
+        default=None,
+        help="push model of the imported scenarios (surface.model; default: the importer's)",
+    )
+    parser.add_argument(
         "-p",
         "--param",
         action="append",
@@ -784,6 +795,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         progress=sys.stderr,
         params=tuple(extra),
         reuse=args.reuse,
+        push_model=args.push_model,
         pusher_candidates=None
         if args.pusher_candidates is None
         else tuple(args.pusher_candidates),

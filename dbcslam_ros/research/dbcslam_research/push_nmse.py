@@ -16,7 +16,12 @@ and (`dbcslam_core.quasi_static`, the motion cone on an ellipsoidal limit surfac
 * ``quasi-static, uniform c``: c from uniform support pressure over the outline, pusher
   friction mu_c = 0.2 (the dataset README's prior);
 * ``quasi-static, fitted``: c = k * c_uniform and mu_c fitted on the OTHER shapes only
-  (leave one shape out over the training shapes) by minimising their NMSE on a grid.
+  (leave one shape out over the training shapes) by minimising their NMSE on a grid;
+* ``filter's quasi-static model``: the same two predictions by the filter's own motion model
+  (`PlanarModel` with ``surface.model: quasi_static``: the limit surface as the effective
+  mass of the contact LCP, c of the uniform support points), the fitted one with the fit
+  expressed as the vocabulary effect ``support_concentration`` (centre_fraction = 1 - k,
+  for k <= 1; k > 1 would be a rim-heavy pressure, ``support_pressure``).
 
 Run: ``python -m dbcslam_research.push_nmse [DATA] --out DIR`` (DATA: the dataset folder with
 ``abs/train`` and ``shapes``, default ``../shared/data/mit-push``); writes ``push_nmse.md``,
@@ -36,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core.dynamics import PlanarModel, State
+from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.quasi_static import limit_surface_c, rollout_push
 from dbcslam_core.scenario import push_scenario
 from dbcslam_ros.importers.mitpush import (
@@ -150,6 +156,31 @@ def predict_dynamic(case: PushCase, support_mu: float = NOMINAL_SUPPORT_MU) -> F
     return displacement(case.pose0, state.q)
 
 
+def predict_quasi_static_model(
+    case: PushCase, mu_c: float = NOMINAL_MU_C, centre_fraction: float = 0.0
+) -> FloatArray:
+    """Final displacement (3,) by the filter's quasi-static motion model (`PlanarModel`,
+    ``surface.model: quasi_static``, uniform pressure plus ``support_concentration``
+    centre_fraction), object at rest at the start, driven by the measured tip path."""
+    sc = push_scenario(
+        case.vertices.tolist(),
+        mass=case.mass,
+        dt=case.dt,
+        pusher_radius=PUSHER_RADIUS,
+        support_mu=NOMINAL_SUPPORT_MU,
+        model="quasi_static",
+    )
+    exts: tuple[ModelExtension, ...] = ()
+    if centre_fraction > 0.0:
+        exts = (ModelExtension.make("support_concentration", centre_fraction=centre_fraction),)
+    model = PlanarModel(sc, exts, active_set=True, support_iterations=3)
+    state = State(q=case.pose0.copy(), v=np.zeros(3))
+    for k in range(case.tip.shape[0] - 1):
+        r = model.step(state, np.zeros(3), case.tip[k], case.tip[k + 1], mu=mu_c)
+        state = State(q=r.q, v=r.v)
+    return displacement(case.pose0, state.q)
+
+
 def nmse(pred: FloatArray, truth: FloatArray) -> FloatArray:
     """NMSE per component over pushes (axis -2), averaged over the 3 components (axis -1).
 
@@ -191,6 +222,15 @@ def evaluate(cases: list[PushCase]) -> dict[str, object]:
         )
         bi, bj = np.unravel_index(int(np.argmin(score)), score.shape)
         on_edge = bi in (0, len(C_FACTORS) - 1) or bj in (0, len(MU_C) - 1)
+        held_cases = [c for c in cases if c.shape == held]
+        k_fit = float(C_FACTORS[bi])
+        qs_nom = np.stack([predict_quasi_static_model(c) for c in held_cases])
+        qs_fit = np.stack(
+            [
+                predict_quasi_static_model(c, float(MU_C[bj]), max(0.0, 1.0 - k_fit))
+                for c in held_cases
+            ]
+        )
         rows.append(
             {
                 "shape": held,
@@ -198,6 +238,9 @@ def evaluate(cases: list[PushCase]) -> dict[str, object]:
                 "nmse_dynamic": float(nmse(dyn[test], truth[test])),
                 "nmse_uniform": float(nmse(grid[i_nom][test], truth[test])),
                 "nmse_fitted": float(nmse(grid[bi, bj][test], truth[test])),
+                "nmse_filter_model_uniform": float(nmse(qs_nom, truth[test])),
+                "nmse_filter_model_fitted": float(nmse(qs_fit, truth[test])),
+                "fit_centre_fraction": round(max(0.0, 1.0 - k_fit), 3),
                 "fit_c_factor": float(C_FACTORS[bi]),
                 "fit_mu_c": float(MU_C[bj]),
                 "fit_at_grid_edge": bool(on_edge),
@@ -209,6 +252,12 @@ def evaluate(cases: list[PushCase]) -> dict[str, object]:
         "mean_nmse_dynamic": float(np.mean([r["nmse_dynamic"] for r in rows])),
         "mean_nmse_uniform": float(np.mean([r["nmse_uniform"] for r in rows])),
         "mean_nmse_fitted": float(np.mean([r["nmse_fitted"] for r in rows])),
+        "mean_nmse_filter_model_uniform": float(
+            np.mean([r["nmse_filter_model_uniform"] for r in rows])
+        ),
+        "mean_nmse_filter_model_fitted": float(
+            np.mean([r["nmse_filter_model_fitted"] for r in rows])
+        ),
         "grid": {"c_factor": C_FACTORS.tolist(), "mu_c": MU_C.tolist()},
         "predictions_fitted": {
             r["shape"]: grid[
@@ -227,18 +276,24 @@ def _markdown(res: dict[str, object]) -> str:
     lines = [
         "| held-out shape | pushes | NMSE nominal dynamic (support mu 0.25) | NMSE quasi-static "
         "(uniform c, mu_c 0.2) | NMSE quasi-static fitted on the other shapes | "
-        "fit: c / c_uniform, mu_c |",
-        "|---|---|---|---|---|---|",
+        "fit: c / c_uniform, mu_c | filter's quasi-static model: uniform / fitted "
+        "(support_concentration) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         edge = " (grid edge)" if r["fit_at_grid_edge"] else ""
         lines.append(
             f"| {r['shape']} | {r['pushes']} | {r['nmse_dynamic']:.3f} | {r['nmse_uniform']:.3f} "
             f"| {r['nmse_fitted']:.3f} "
-            f"| {r['fit_c_factor']:.1f}, {r['fit_mu_c']:.2f}{edge} |"
+            f"| {r['fit_c_factor']:.1f}, {r['fit_mu_c']:.2f}{edge} "
+            f"| {r['nmse_filter_model_uniform']:.3f} / {r['nmse_filter_model_fitted']:.3f} "
+            f"(centre_fraction {r['fit_centre_fraction']:.1f}) |"
         )
-    dyn, uni, fit = (res[f"mean_nmse_{k}"] for k in ("dynamic", "uniform", "fitted"))
-    lines.append(f"| **mean** | | {dyn:.3f} | {uni:.3f} | {fit:.3f} | |")
+    dyn, uni, fit, fu, ff = (
+        res[f"mean_nmse_{k}"]
+        for k in ("dynamic", "uniform", "fitted", "filter_model_uniform", "filter_model_fitted")
+    )
+    lines.append(f"| **mean** | | {dyn:.3f} | {uni:.3f} | {fit:.3f} | | {fu:.3f} / {ff:.3f} |")
     return "\n".join(lines) + "\n"
 
 

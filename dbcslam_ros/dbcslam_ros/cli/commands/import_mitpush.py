@@ -101,6 +101,7 @@ def _run(args: argparse.Namespace) -> int:
             thickness=args.thickness,
             mass=args.mass,
             inertia=args.inertia,
+            **({} if args.push_model is None else {"push_model": args.push_model}),
         )
     except MitPushError as err:
         raise UsageError(str(err)) from err
@@ -253,6 +254,14 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         default=[0.1, 0.2, 0.3],
         metavar="MU",
         help="candidate object-surface friction coefficients (default 0.1 0.2 0.3)",
+    )
+    parser.add_argument(
+        "--push-model",
+        choices=("dynamic", "quasi_static"),
+        default=None,
+        help="the scenario's push model (surface.model): dynamic (rigid body with inertia and "
+        "Coulomb support friction) or quasi_static (limit surface, no coasting); default: "
+        "dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL",
     )
     parser.add_argument(
         "--shapes",

@@ -1,0 +1,657 @@
+"""Compiled kernels of the filter's hot path (numba): the reduced contact dynamics and the
+Gaussian (Kalman-form) proposal update.
+
+`reduced_dynamics` is the kernel of `contact_modes.solve_reduced`:
+
+One loop over the lead elements (particle x mode hypothesis x friction hypothesis, flattened)
+that builds and solves each element's r x r system in registers: the same equations as the
+numpy path of `contact_modes.solve_reduced` (equality rows: normal rows of the non-separated
+contacts, tangent rows of the sticking ones; a sliding contact's friction impulse follows its
+normal impulse, lt = -c ln; relative Tikhonov term eps_rel on the diagonal as in the padded
+form), then the post-step velocity, gap rates, slips, the violation score and the response
+maps. Elements without sliding contacts do not depend on friction: consecutive elements of
+one geometry element share their solve (as the numpy path solves them once).
+
+The numpy path does about a thousand small array operations per filter step (gathers,
+batched LAPACK calls on 2 x 2 .. 6 x 6 systems); here each system costs a few hundred
+floating-point operations. Compiled with numba (`cache=True`: the machine code is stored
+next to this file, or in numba's user cache directory when that is read-only, so a node
+starts without recompiling). `AVAILABLE` is False when numba cannot be imported; callers
+then use the numpy path.
+
+Units as in `contact_modes.solve_reduced`: velocities m/s (rad/s), impulses N s, gaps m.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["AVAILABLE", "enumerate_tuples", "gaussian_update", "reduced_dynamics"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+try:  # pragma: no cover - exercised by whichever import succeeds
+    import numba
+except ImportError:  # pragma: no cover
+    AVAILABLE = False
+else:
+    AVAILABLE = True
+
+_SEP, _STICK, _POS, _NEG = 0, 1, 2, 3
+
+
+def _lu_solve_inplace(a: FloatArray, b: FloatArray, r: int, m: int) -> bool:
+    """Solve a[:r, :r] x = b[:r, :m] in place (b <- x) by Gaussian elimination with partial
+    pivoting; returns False for a singular system (a zero pivot)."""
+    for k in range(r):
+        p = k
+        best = abs(a[k, k])
+        for i in range(k + 1, r):
+            if abs(a[i, k]) > best:
+                best = abs(a[i, k])
+                p = i
+        if best == 0.0:
+            return False
+        if p != k:
+            for j in range(r):
+                a[k, j], a[p, j] = a[p, j], a[k, j]
+            for j in range(m):
+                b[k, j], b[p, j] = b[p, j], b[k, j]
+        inv = 1.0 / a[k, k]
+        for i in range(k + 1, r):
+            f = a[i, k] * inv
+            if f != 0.0:
+                for j in range(k + 1, r):
+                    a[i, j] -= f * a[k, j]
+                for j in range(m):
+                    b[i, j] -= f * b[k, j]
+    for k in range(r - 1, -1, -1):
+        inv = 1.0 / a[k, k]
+        for j in range(m):
+            s = b[k, j]
+            for i in range(k + 1, r):
+                s -= a[k, i] * b[i, j]
+            b[k, j] = s * inv
+    return True
+
+
+def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword-only args
+    md: IntArray,
+    vf: FloatArray,
+    jn: FloatArray,
+    jt: FloatArray,
+    phi: FloatArray,
+    vne: FloatArray,
+    vte: FloatArray,
+    minv: FloatArray,
+    mass: FloatArray,
+    has_mass: bool,
+    mu_rows: FloatArray,
+    gi: IntArray,
+    ui: IntArray,
+    group: IntArray,
+    n_groups: int,
+    dt: float,
+    eps_rel: float,
+    sc_impulse: float,
+    sc_velocity: float,
+    sc_floor: float,
+    sensitivity: bool,
+    v_next: FloatArray,
+    ln: FloatArray,
+    lt: FloatArray,
+    gap_rate: FloatArray,
+    vt: FloatArray,
+    score: FloatArray,
+    resp: FloatArray,
+    irs: FloatArray,
+) -> int:
+    """Fill the outputs of every lead element; returns the number of singular systems.
+
+    Why one function of ~200 lines: numba compiles one loop with all scratch arrays
+    allocated once; splitting it into calls that pass ten arrays each costs clarity, not
+    speed, but the steps are marked and mirror the numpy path of `solve_reduced`.
+    """
+    n_g, n_c = md.shape
+    nv = vf.shape[1]
+    n_m = gi.shape[0]
+    two_c = 2 * n_c
+    # -- M^-1 [Jn; Jt]^T rows per geometry element and the Tikhonov scale ------------------
+    mw = np.empty((n_g, two_c, nv))
+    lu = np.empty((nv, nv))
+    rhs_m = np.empty((nv, two_c))
+    n_max = 0
+    for g in range(n_g):
+        cnt = 0
+        for c in range(n_c):
+            if md[g, c] != _SEP:
+                cnt += 1
+        n_max = max(n_max, cnt)
+    n_bad = 0
+    for g in range(n_g):
+        if has_mass:
+            for i in range(nv):
+                for j in range(nv):
+                    lu[i, j] = mass[g, i, j]
+                for c in range(n_c):
+                    rhs_m[i, c] = jn[g, c, i]
+                    rhs_m[i, n_c + c] = jt[g, c, i]
+            if not _lu_solve_inplace(lu, rhs_m, nv, two_c):
+                n_bad += 1
+            for c in range(two_c):
+                for i in range(nv):
+                    mw[g, c, i] = rhs_m[i, c]
+        else:
+            for c in range(n_c):
+                for i in range(nv):
+                    mw[g, c, i] = jn[g, c, i] * minv[g, i]
+                    mw[g, n_c + c, i] = jt[g, c, i] * minv[g, i]
+    # -- per lead element -----------------------------------------------------------------
+    rows = np.empty(two_c, dtype=np.int64)  # slot of each equality row (c or C + c)
+    grow = np.empty((two_c, nv))  # constraint rows G
+    frow = np.empty((two_c, nv))  # M^-1 F^T rows
+    amat = np.empty((two_c, two_c))
+    x = np.empty((two_c, 1 + nv))
+    cpl = np.zeros(n_c)
+    lt_g = np.zeros(max(n_groups, 1))
+    cap_g = np.zeros(max(n_groups, 1))
+    mag_g = np.zeros(max(n_groups, 1))
+    an = np.empty(n_c)
+    at = np.empty(n_c)
+    last_fix = -1  # lead element whose friction-free solution can be reused
+    for m in range(n_m):
+        g = gi[m]
+        u = ui[m]
+        n_act = 0
+        n_stick = 0
+        slides = False
+        for c in range(n_c):
+            mc = md[g, c]
+            if mc != _SEP:
+                n_act += 1
+            if mc == _STICK:
+                n_stick += 1
+            if mc >= _POS:
+                slides = True
+        reuse = (not slides) and last_fix >= 0 and gi[last_fix] == g
+        if reuse:
+            for c in range(n_c):
+                ln[m, c] = ln[last_fix, c]
+                lt[m, c] = lt[last_fix, c]
+            for i in range(nv):
+                v_next[m, i] = v_next[last_fix, i]
+                for j in range(nv):
+                    resp[m, i, j] = resp[last_fix, i, j]
+            if sensitivity:
+                for k in range(2):
+                    for c in range(n_c):
+                        for i in range(nv):
+                            irs[m, k, c, i] = irs[last_fix, k, c, i]
+        else:
+            # free-motion gap rates and slips of this geometry element
+            for c in range(n_c):
+                sn = 0.0
+                st = 0.0
+                for i in range(nv):
+                    sn += jn[g, c, i] * vf[g, i]
+                    st += jt[g, c, i] * vf[g, i]
+                an[c] = sn - vne[g, c] + phi[g, c] / dt
+                at[c] = st - vte[g, c]
+            for i in range(nv):
+                v_next[m, i] = vf[g, i]
+                for j in range(nv):
+                    resp[m, i, j] = 1.0 if i == j else 0.0
+            for c in range(n_c):
+                ln[m, c] = 0.0
+                lt[m, c] = 0.0
+                cpl[c] = 0.0
+                if md[g, c] == _POS:
+                    cpl[c] = mu_rows[u, c]
+                elif md[g, c] == _NEG:
+                    cpl[c] = -mu_rows[u, c]
+            if sensitivity:
+                for k in range(2):
+                    for c in range(n_c):
+                        for i in range(nv):
+                            irs[m, k, c, i] = 0.0
+            if n_act > 0:
+                # Tikhonov scale: mean Delassus diagonal over the active contacts and the
+                # first (n_max - n_act) separated ones (normal and tangent rows)
+                extra = n_max - n_act
+                dsum = 0.0
+                for c in range(n_c):
+                    take = md[g, c] != _SEP
+                    if not take and extra > 0:
+                        take = True
+                        extra -= 1
+                    if take:
+                        for i in range(nv):
+                            dsum += jn[g, c, i] * mw[g, c, i] + jt[g, c, i] * mw[g, n_c + c, i]
+                eps = eps_rel * max(dsum / (2 * n_max), 1e-300)
+                r = 0
+                for c in range(n_c):  # normal rows of the active contacts, in contact order
+                    if md[g, c] != _SEP:
+                        rows[r] = c
+                        for i in range(nv):
+                            grow[r, i] = jn[g, c, i]
+                            frow[r, i] = mw[g, c, i] - cpl[c] * mw[g, n_c + c, i]
+                        x[r, 0] = -an[c]
+                        r += 1
+                for c in range(n_c):  # tangent rows of the sticking contacts
+                    if md[g, c] == _STICK:
+                        rows[r] = n_c + c
+                        for i in range(nv):
+                            grow[r, i] = jt[g, c, i]
+                            frow[r, i] = mw[g, n_c + c, i]
+                        x[r, 0] = -at[c]
+                        r += 1
+                for i in range(r):
+                    for j in range(nv):
+                        x[i, 1 + j] = -grow[i, j]
+                    for j in range(r):
+                        s = 0.0
+                        for k in range(nv):
+                            s += grow[i, k] * frow[j, k]
+                        amat[i, j] = s
+                    amat[i, i] += eps
+                if not _lu_solve_inplace(amat, x, r, 1 + nv):
+                    n_bad += 1
+                for j in range(r):
+                    for i in range(nv):
+                        v_next[m, i] += frow[j, i] * x[j, 0]
+                        for k in range(nv):
+                            resp[m, i, k] += frow[j, i] * x[j, 1 + k]
+                for j in range(r):
+                    slot = rows[j]
+                    if slot < n_c:
+                        ln[m, slot] = x[j, 0]
+                    else:
+                        lt[m, slot - n_c] = x[j, 0]
+                for c in range(n_c):
+                    lt[m, c] -= cpl[c] * ln[m, c]
+                if sensitivity:
+                    for j in range(r):
+                        slot = rows[j]
+                        k = 0 if slot < n_c else 1
+                        for i in range(nv):
+                            irs[m, k, slot % n_c, i] = x[j, 1 + i]
+                    for c in range(n_c):
+                        for i in range(nv):
+                            irs[m, 1, c, i] -= cpl[c] * irs[m, 0, c, i]
+            if not slides:
+                last_fix = m
+        # -- gap rates, slips and the violation score of element m ------------------------
+        v_sq = 0.0
+        imp = 0.0
+        for k in range(n_groups):
+            lt_g[k] = 0.0
+            cap_g[k] = 0.0
+            mag_g[k] = 0.0
+        for c in range(n_c):
+            sn = 0.0
+            st = 0.0
+            for i in range(nv):
+                sn += jn[g, c, i] * v_next[m, i]
+                st += jt[g, c, i] * v_next[m, i]
+            gr = sn - vne[g, c] + phi[g, c] / dt
+            vtc = st - vte[g, c]
+            gap_rate[m, c] = gr
+            vt[m, c] = vtc
+            mc = md[g, c]
+            v_neg = 0.0
+            if mc == _SEP:
+                v_neg = -gr
+            elif mc == _POS:
+                v_neg = -vtc
+            elif mc == _NEG:
+                v_neg = vtc
+            if v_neg > 0.0:
+                v_sq += (v_neg / sc_velocity) ** 2
+            lnc = ln[m, c]
+            ltc = lt[m, c]
+            mag = abs(lnc) + abs(ltc) + sc_floor
+            if mc != _SEP and lnc < 0.0:
+                imp += (-lnc / mag / sc_impulse) ** 2
+            if mc == _STICK:
+                k = group[c]
+                lt_g[k] += ltc
+                cap_g[k] += mu_rows[u, c] * lnc
+                mag_g[k] += mag - sc_floor
+        for k in range(n_groups):
+            viol = abs(lt_g[k]) - cap_g[k]
+            if viol > 0.0:
+                imp += (viol / (mag_g[k] + sc_floor) / sc_impulse) ** 2
+        score[m] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
+    return n_bad
+
+
+def _gaussian_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    y: FloatArray,
+    vh: FloatArray,
+    sv: FloatArray,
+    s_diag: FloatArray,
+    dt: float,
+    log_pred: FloatArray,
+    v_mean: FloatArray,
+    v_cov: FloatArray,
+) -> None:
+    """Per element m: S = dt^2 sv + s_diag = L L^T (pivots clipped at 1e-300 as in
+    `observation._chol_of`), Z = L^-1 [y, dt sv^T], log_pred = log N(y; 0, S),
+    v_mean = vh + Z_c^T Z_y, v_cov = sv - Z_c^T Z_c."""
+    n_m, n = y.shape
+    low = np.zeros((n, n))
+    z = np.empty((n, n + 1))
+    log_2pi = np.log(2.0 * np.pi)
+    dt2 = dt * dt
+    for m in range(n_m):
+        for j in range(n):
+            d = dt2 * sv[m, j, j] + s_diag[j, j]
+            for k in range(j):
+                d -= low[j, k] * low[j, k]
+            ljj = np.sqrt(max(d, 1e-300))
+            low[j, j] = ljj
+            for i in range(j + 1, n):
+                num = dt2 * sv[m, i, j] + s_diag[i, j]
+                for k in range(j):
+                    num -= low[i, k] * low[j, k]
+                low[i, j] = num / ljj
+        logdet = 0.0
+        maha = 0.0
+        for i in range(n):
+            z[i, 0] = y[m, i]
+            for v in range(n):
+                z[i, 1 + v] = sv[m, v, i] * dt
+            for col in range(n + 1):
+                s = 0.0
+                for k in range(i):
+                    s += low[i, k] * z[k, col]
+                z[i, col] = (z[i, col] - s) / low[i, i]
+            maha += z[i, 0] * z[i, 0]
+            logdet += np.log(low[i, i])
+        log_pred[m] = -0.5 * (maha + 2.0 * logdet + n * log_2pi)
+        for a in range(n):
+            cx = 0.0
+            for i in range(n):
+                cx += z[i, 1 + a] * z[i, 0]
+            v_mean[m, a] = vh[m, a] + cx
+            for b in range(n):
+                cx = 0.0
+                for i in range(n):
+                    cx += z[i, 1 + a] * z[i, 1 + b]
+                v_cov[m, a, b] = sv[m, a, b] - cx
+
+
+if AVAILABLE:
+    _lu_solve_inplace = numba.njit(cache=True, nogil=True)(_lu_solve_inplace)
+    _kernel = numba.njit(cache=True, nogil=True)(_kernel)
+    _gaussian_kernel = numba.njit(cache=True, nogil=True)(_gaussian_kernel)
+
+
+def gaussian_update(
+    y: FloatArray, vh: FloatArray, sv: FloatArray, *, s_diag: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Kalman-form update of the velocity v' ~ N(vh, sv) by an observation of every position
+    dim o = q + dt v' + noise (noise covariance s_diag (n, n)): innovation y (M, n),
+    vh (M, n), sv (M, n, n), all contiguous. Returns log p(y) (M,), the posterior mean (M, n)
+    and covariance (M, n, n) of v' (see `observation.gaussian_proposal`)."""
+    n_m, n = y.shape
+    log_pred = np.empty(n_m)
+    v_mean = np.empty((n_m, n))
+    v_cov = np.empty((n_m, n, n))
+    _gaussian_kernel(y, vh, sv, np.ascontiguousarray(s_diag), float(dt), log_pred, v_mean, v_cov)
+    return log_pred, v_mean, v_cov
+
+
+def reduced_dynamics(
+    md: IntArray,
+    vf: FloatArray,
+    *,
+    jn: FloatArray,
+    jt: FloatArray,
+    phi: FloatArray,
+    vne: FloatArray,
+    vte: FloatArray,
+    minv: FloatArray,
+    mass: FloatArray | None,
+    mu_rows: FloatArray,
+    gi: IntArray,
+    ui: IntArray,
+    group: IntArray,
+    dt: float,
+    eps_rel: float,
+    scales: tuple[float, float, float],
+    sensitivity: bool,
+) -> tuple[dict[str, FloatArray], int]:
+    """Run the kernel on geometry elements (G, ...) and lead elements (M,) = (gi, ui).
+
+    md (G, C) modes; vf (G, nv); jn, jt (G, C, nv); phi, vne, vte (G, C); minv (G, nv) the
+    diagonal of M^-1 (ignored when mass (G, nv, nv) is given); mu_rows (U, C); gi, ui (M,)
+    the geometry element and mu row of each lead element; group (C,) obstacle group index of
+    each contact (0..n-1); scales = (impulse, velocity, impulse_floor). Returns the outputs
+    (v_next, ln, lt, gap_rate, vt, score, response, impulse_response) flattened over M and
+    the number of singular systems met.
+    """
+    n_m = gi.shape[0]
+    n_c = md.shape[1]
+    nv = vf.shape[1]
+    out: dict[str, Any] = {
+        "v_next": np.empty((n_m, nv)),
+        "ln": np.empty((n_m, n_c)),
+        "lt": np.empty((n_m, n_c)),
+        "gap_rate": np.empty((n_m, n_c)),
+        "vt": np.empty((n_m, n_c)),
+        "score": np.empty(n_m),
+        "response": np.empty((n_m, nv, nv)),
+        "impulse_response": np.empty((n_m if sensitivity else 0, 2, n_c, nv)),
+    }
+    n_groups = int(group.max()) + 1 if group.size else 0
+    n_bad = _kernel(
+        md,
+        vf,
+        jn,
+        jt,
+        phi,
+        vne,
+        vte,
+        minv,
+        np.zeros((0, nv, nv)) if mass is None else mass,
+        mass is not None,
+        mu_rows,
+        gi,
+        ui,
+        group,
+        n_groups,
+        float(dt),
+        float(eps_rel),
+        float(scales[0]),
+        float(scales[1]),
+        float(scales[2]),
+        bool(sensitivity),
+        out["v_next"],
+        out["ln"],
+        out["lt"],
+        out["gap_rate"],
+        out["vt"],
+        out["score"],
+        out["response"],
+        out["impulse_response"],
+    )
+    return out, int(n_bad)
+
+
+def _insert_desc(  # noqa: PLR0917 - numba helper
+    vals: FloatArray, idx: IntArray, n: int, cap: int, v: float, i: int
+) -> int:
+    """Insert (v, i) into the first n entries of vals/idx kept sorted by descending v, ties
+    in insertion order (a stable sort of -v); at most cap entries. Returns the new n."""
+    if n == cap and not v > vals[n - 1]:
+        return n  # not better than the last kept (ties keep the earlier)
+    pos = n if n < cap else cap - 1
+    while pos > 0 and v > vals[pos - 1]:
+        pos -= 1
+    last = min(n, cap - 1)
+    for j in range(last, pos, -1):
+        vals[j] = vals[j - 1]
+        idx[j] = idx[j - 1]
+    vals[pos] = v
+    idx[pos] = i
+    return min(n + 1, cap)
+
+
+def _feasible(  # noqa: PLR0917 - numba helper: positional arrays
+    modes: IntArray,
+    crowded: IntArray,
+    forbidden: IntArray,
+    same: IntArray,
+    phi: FloatArray,
+    has_phi: bool,
+    both_tolerance: float,
+) -> bool:
+    """`contact_modes.geometric_feasible` of one joint assignment modes (C,)."""
+    for g in range(crowded.shape[0]):
+        n_in = 0
+        for j in range(crowded.shape[1]):
+            c = crowded[g, j]
+            if c >= 0 and modes[c] != _SEP:
+                n_in += 1
+        if n_in > 2:
+            return False
+    for f in range(forbidden.shape[0]):
+        if modes[forbidden[f, 0]] != _SEP and modes[forbidden[f, 1]] != _SEP:
+            return False
+    for s in range(same.shape[0]):
+        a = same[s, 0]
+        b = same[s, 1]
+        both = modes[a] != _SEP and modes[b] != _SEP
+        if both and (not has_phi or phi[a] + phi[b] > both_tolerance):
+            return False
+    return True
+
+
+def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    order: IntArray,
+    lsp: FloatArray,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray,
+    has_phi: bool,
+    crowded: IntArray,
+    forbidden: IntArray,
+    same: IntArray,
+    both_tolerance: float,
+    out_modes: IntArray,
+    out_logp: FloatArray,
+    out_valid: npt.NDArray[np.bool_],
+) -> int:
+    """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
+    n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
+    tuples are screened first, as there); returns the largest valid count."""
+    n_p, n_c, _ = lsp.shape
+    n_t = ranks.shape[0]
+    truncated = pre_k < n_t
+    pre_v = np.empty(max(pre_k, 1))
+    pre_i = np.empty(max(pre_k, 1), dtype=np.int64)
+    top_v = np.empty(n_keep)
+    top_i = np.empty(n_keep, dtype=np.int64)
+    cand = np.empty(n_c, dtype=np.int64)
+    e = np.empty(n_keep)
+    k_used = 1
+    for p in range(n_p):
+        n_pre = 0
+        n_top = 0
+        for t in range(n_t):
+            lp = lsp[p, 0, ranks[t, 0]]
+            for c in range(1, n_c):
+                lp += lsp[p, c, ranks[t, c]]
+            if truncated:
+                n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
+                continue
+            for c in range(n_c):
+                cand[c] = order[p, c, ranks[t, c]]
+            if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                lp = -np.inf
+            n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
+        if truncated:
+            for r in range(n_pre):
+                t = pre_i[r]
+                lp = pre_v[r]
+                for c in range(n_c):
+                    cand[c] = order[p, c, ranks[t, c]]
+                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                    lp = -np.inf
+                n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
+        m = top_v[0] if np.isfinite(top_v[0]) else 0.0
+        tot = 0.0
+        for k in range(n_top):
+            e[k] = np.exp(top_v[k] - m)
+            tot += e[k]
+        tot = max(tot, 1e-300)
+        n_valid = 0
+        for k in range(n_top):
+            t = top_i[k]
+            for c in range(n_c):
+                out_modes[p, k, c] = order[p, c, ranks[t, c]]
+            ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
+            out_valid[p, k] = ok
+            out_logp[p, k] = top_v[k] if ok else -np.inf
+            if ok:
+                n_valid += 1
+        k_used = max(k_used, n_valid)
+    return k_used
+
+
+if AVAILABLE:
+    _insert_desc = numba.njit(cache=True, nogil=True)(_insert_desc)
+    _feasible = numba.njit(cache=True, nogil=True)(_feasible)
+    _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
+
+
+def enumerate_tuples(
+    order: IntArray,
+    lsp: FloatArray,
+    *,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray | None,
+    rules: tuple[IntArray, IntArray, IntArray],
+    both_tolerance: float,
+) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
+    """Compiled `contact_modes.enumerate_hypotheses` core: order (P, C, 4) the modes of each
+    contact by descending probability and lsp (P, C, 4) their log probabilities (-inf where
+    not live), in that order; ranks
+    (T, C) the mixed-radix digit tuples, n_keep = min(max_hypotheses, pre_k) columns, phi
+    (P, C) gaps or None, rules = (crowded (G, L) padded with -1, forbidden (F, 2), same
+    feature (S, 2)). Returns modes (P, K, C), log prior (P, K), valid (P, K), K the largest
+    valid count (>= 1)."""
+    n_p, n_c, _ = lsp.shape
+    out_modes = np.zeros((n_p, n_keep, n_c), dtype=np.int64)
+    out_logp = np.full((n_p, n_keep), -np.inf)
+    out_valid = np.zeros((n_p, n_keep), dtype=np.bool_)
+    has_phi = phi is not None
+    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
+    k_used = _enumerate_kernel(
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(lsp, dtype=np.float64),
+        float(threshold),
+        np.ascontiguousarray(ranks, dtype=np.int64),
+        int(n_keep),
+        int(pre_k),
+        ph,
+        has_phi,
+        rules[0],
+        rules[1],
+        rules[2],
+        float(both_tolerance),
+        out_modes,
+        out_logp,
+        out_valid,
+    )
+    return out_modes[:, :k_used], out_logp[:, :k_used], out_valid[:, :k_used]
