@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .angles import wrap_angle
 from .errors import ModelError
+from .polygon import as_polygon, cross2, polygon_area, polygon_centroid, polygon_inertia
 from .scenario import PRESSURE_MODELS, Disk, HalfSpace, Scenario
 
 __all__ = [
@@ -51,56 +52,6 @@ def rotate(yaw: ArrayLike, p: ArrayLike) -> F64:
     c, s = np.cos(th), np.sin(th)
     x, y = pa[..., 0], pa[..., 1]
     return np.stack([c * x - s * y, s * x + c * y], -1)
-
-
-def cross2(a: ArrayLike, b: ArrayLike) -> F64:
-    """Planar cross product a_x b_y - a_y b_x over the last axis (size 2)."""
-    aa = np.asarray(a, dtype=np.float64)
-    bb = np.asarray(b, dtype=np.float64)
-    return np.asarray(aa[..., 0] * bb[..., 1] - aa[..., 1] * bb[..., 0], dtype=np.float64)
-
-
-def _poly(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
-    v = np.asarray(vertices, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
-        msg = f"polygon needs vertices of shape (n >= 3, 2), got shape {v.shape}"
-        raise ModelError(msg)
-    return v
-
-
-def polygon_area(vertices: Sequence[Sequence[float]] | ArrayLike) -> float:
-    """Signed area (m^2, > 0 for counter-clockwise vertices) of a simple polygon."""
-    v = _poly(vertices)
-    return float(0.5 * np.sum(cross2(v, np.roll(v, -1, axis=0))))
-
-
-def polygon_centroid(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
-    """Centroid (m) of the uniform-density polygon area."""
-    v = _poly(vertices)
-    w = np.roll(v, -1, axis=0)
-    cr = cross2(v, w)
-    a = 0.5 * np.sum(cr)
-    if abs(a) < 1e-300:
-        msg = f"polygon has zero area: {v.tolist()}"
-        raise ModelError(msg)
-    return np.asarray(np.sum((v + w) * cr[:, None], axis=0) / (6.0 * a), dtype=np.float64)
-
-
-def polygon_inertia(
-    vertices: Sequence[Sequence[float]] | ArrayLike, mass: float, about_centroid: bool = False
-) -> float:
-    """Polar moment of inertia (kg m^2) of a uniform polygon of `mass` about the origin.
-
-    With `about_centroid` the moment is taken about the area centroid instead.
-    """
-    v = _poly(vertices)
-    if about_centroid:
-        v = v - polygon_centroid(v)
-    w = np.roll(v, -1, axis=0)
-    cr = cross2(v, w)
-    a = 0.5 * np.sum(cr)
-    j = np.sum(cr * (np.sum(v * v, 1) + np.sum(v * w, 1) + np.sum(w * w, 1))) / 12.0
-    return float(mass * j / a)
 
 
 def _subdivided_triangles(tris: F64, k: int) -> tuple[F64, F64]:
@@ -202,7 +153,7 @@ def support_points(
     pressure centre sum w_i p_i is the centre of mass (0, 0) exactly (static moment balance on
     a flat support). A point mass (no vertices) gets the single point (0, 0).
     """
-    v = _poly(vertices) if np.size(vertices) else np.zeros((1, 2))
+    v = as_polygon(vertices) if np.size(vertices) else np.zeros((1, 2))
     if pressure not in PRESSURE_MODELS:
         msg = f"unknown pressure distribution {pressure!r}; valid are {list(PRESSURE_MODELS)}"
         raise ModelError(msg)

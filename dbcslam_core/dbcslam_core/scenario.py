@@ -55,6 +55,7 @@ from typing import Any, Literal
 import yaml
 
 from .errors import ScenarioError
+from .polygon import polygon_inertia
 
 __all__ = [
     "DEFAULT_VELOCITY_EPS",
@@ -883,8 +884,6 @@ def push_scenario(
     """
     verts = tuple((float(v[0]), float(v[1])) for v in vertices)
     if inertia is None:
-        from .geometry import polygon_inertia
-
         inertia = polygon_inertia(verts, mass)
     pairs: tuple[str, ...] = ("pusher",) if support_pair is None else ("pusher", support_pair)
     cands = tuple(float(c) for c in candidates)

@@ -1,4 +1,4 @@
-"""`dbcslam_ros.mitpush_discrepancy`: split selection, summary tables, usage errors."""
+"""`dbcslam_research.mitpush_discrepancy`: split selection, summary tables, usage errors."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-import dbcslam_ros.mitpush_discrepancy as md
+import dbcslam_research.mitpush_discrepancy as md
 
 
 def _bag(shape: str, i: int) -> Path:

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from dbcslam_core.synthetic import edge_trajectory
-from dbcslam_ros import filter_node as fn
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import array_from_msg, pose_stamped, wrench_stamped
+from dbcslam_ros.node import filter_node as fn
 
 NS = 1_000_000_000
 T0 = 10 * NS

@@ -1,4 +1,4 @@
-"""Tests of dbcslam_ros.readme_results: the README results section generator."""
+"""Tests of dbcslam_research.readme_results: the README results section generator."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros.readme_results import (
+from dbcslam_research.readme_results import (
     MARKER_BEGIN,
     MARKER_END,
     figure_caption,
@@ -49,7 +49,7 @@ def repo(tmp_path: Path) -> Path:
     res = tmp_path / "dbcslam_ros" / "research" / "results"
     res.mkdir(parents=True)
     payload = {
-        "command": "python -m dbcslam_ros.experiments --seeds 5",
+        "command": "python -m dbcslam_research.experiments --seeds 5",
         "date_utc": "2026-11-21 06:45 UTC",
         "elapsed_s": 120.0,
         "targets": _targets(0.26),
@@ -59,7 +59,7 @@ def repo(tmp_path: Path) -> Path:
     for name in ("edge_overview.png", "edge_friction.png", "gripper_yaw.png"):
         (res / name).write_bytes(PNG)
     (res / "bench.md").write_text(
-        "# DBC-SLAM benchmark\n\nCommand: `python -m dbcslam_ros.bench --repeat 2`\n\n"
+        "# DBC-SLAM benchmark\n\nCommand: `python -m dbcslam_research.bench --repeat 2`\n\n"
         "## Per-step time\n\n| a | b |\n|---|---|\n| 1 | 2 |\n"
     )
     (res / "bench.json").write_text(json.dumps({"meta": {"date_utc": "2026-11-21 06:30 UTC"}}))
@@ -78,7 +78,7 @@ def test_rewrites_only_between_markers(repo: Path) -> None:
     assert head == "# Title\n\nintro\n\n"
     assert tail == "\n\n## After\n"
     assert "old text" not in body
-    assert "`python -m dbcslam_ros.experiments --seeds 5`" in body
+    assert "`python -m dbcslam_research.experiments --seeds 5`" in body
     assert "2026-11-21 06:45 UTC" in body
     assert "| edge | position RMSE <= 0.5 x noise std | 0.260 | <= 0.500 | PASS |" in body
     assert "| gripper | live hypotheses | 6.000 | - | report |" in body
@@ -106,7 +106,9 @@ def test_optional_sections_and_check(repo: Path) -> None:
     sim = res / "sim"
     sim.mkdir()
     (sim / "experiments_sim.json").write_text(
-        json.dumps({"command": "python -m dbcslam_ros.experiments_sim", "targets": _targets(0.7)})
+        json.dumps(
+            {"command": "python -m dbcslam_research.experiments_sim", "targets": _targets(0.7)}
+        )
     )
     (sim / "sim_push_offcentre_yaw.png").write_bytes(PNG)
     (res / "bench_live.md").write_text("# Live\n\nDate: today; rate 100 Hz\n")
@@ -114,7 +116,7 @@ def test_optional_sections_and_check(repo: Path) -> None:
     assert "pybullet data" not in readme.read_text()
     assert main(["--readme", str(readme), "--results", str(res)]) == 0
     body = readme.read_text()
-    assert "`python -m dbcslam_ros.experiments_sim`" in body
+    assert "`python -m dbcslam_research.experiments_sim`" in body
     assert "(file time)" in body  # no date_utc in the sim JSON: file modification time
     assert "| edge | position RMSE <= 0.5 x noise std | 0.700 | <= 0.500 | FAIL |" in body
     assert (

@@ -33,7 +33,7 @@ _EXAMPLES = """\
 
 
 def _configure(parser: argparse.ArgumentParser) -> None:
-    from dbcslam_ros.demo import SCENARIOS
+    from dbcslam_ros.offline.demo import SCENARIOS
 
     parser.add_argument("--scenario", choices=SCENARIOS, default="gripper", help="scenario")
     parser.add_argument("--out", metavar="DIR", help="bag directory to create")
@@ -51,7 +51,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dbcslam_ros.demo import DemoError, DemoOptions, run_demo
+    from dbcslam_ros.offline.demo import DemoError, DemoOptions, run_demo
 
     opts = DemoOptions(
         scenario=args.scenario,

@@ -57,7 +57,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dbcslam_ros.filter_node import main
+    from dbcslam_ros.node.filter_node import main
 
     argv = ["dbcslam_filter", "--ros-args"]
     if args.params:

@@ -7,7 +7,7 @@
 - ``listener``: logs every message of both topics; exits once it has ``count`` chatter messages
   and the scenario, if ``count`` > 0.
 
-Run: ``python -m dbcslam_ros.demo_nodes talker --ros-args -p rate_hz:=20`` (or the ``talker``
+Run: ``python -m dbcslam_ros.node.demo_nodes talker --ros-args -p rate_hz:=20`` (or the ``talker``
 / ``listener`` entry points). Both exit with 0 on SIGINT/SIGTERM.
 """
 
@@ -145,12 +145,12 @@ def listener_main(args: Sequence[str] | None = None) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m dbcslam_ros.demo_nodes {talker|listener} [--ros-args ...]``."""
+    """``python -m dbcslam_ros.node.demo_nodes {talker|listener} [--ros-args ...]``."""
     argv = list(sys.argv if argv is None else argv)
     plain = rt.remove_ros_args(argv)
     if len(plain) < 2 or plain[1] not in ("talker", "listener"):
         sys.stderr.write(
-            "usage: python -m dbcslam_ros.demo_nodes {talker|listener} [--ros-args ...]\n"
+            "usage: python -m dbcslam_ros.node.demo_nodes {talker|listener} [--ros-args ...]\n"
         )
         return 2
     return talker_main(argv) if plain[1] == "talker" else listener_main(argv)

@@ -4,7 +4,7 @@ Run: ``dbcslam filter [--params FILE]`` or ``ros2 run dbcslam_ros filter_node``.
 
 The node configures itself from the latched ``/scenario`` (or parameter ``scenario_file``;
 a changed ``/scenario`` reconfigures it), feeds decoded inputs to a
-:class:`~dbcslam_ros.session.FilterSession` (synchronisation rules there) and publishes, for
+:class:`~dbcslam_ros.node.session.FilterSession` (synchronisation rules there) and publishes, for
 every processed pose, ``/dbcslam/pose`` first, then odometry, contact modes, friction, the
 friction map, markers (at most one per ``marker_period`` of stamp time); ``/diagnostics``
 every ``diagnostics_period`` s. ``/pusher/wrench`` (push) is a force observation when
@@ -67,8 +67,8 @@ from dbcslam_ros.convert import (
     yaw_to_quaternion,
 )
 from dbcslam_ros.errors import ParameterError
+from dbcslam_ros.node.session import WINDOW, FilterSession, StampedEstimate
 from dbcslam_ros.ros_context import init_ros
-from dbcslam_ros.session import WINDOW, FilterSession, StampedEstimate
 
 __all__ = [
     "INPUT_TOPICS",
@@ -127,7 +127,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 
 #: Default particle count per scenario kind (parameter ``particles`` = -1): chosen so that on
 #: an idle 2-core machine the filter keeps up with the simulator at 100 Hz (one core each)
-#: with margin; measured with ``python -m dbcslam_ros.bench_live --offline`` (README).
+#: with margin; measured with ``python -m dbcslam_research.bench_live --offline`` (README).
 LIVE_PARTICLES: dict[str, int] = {"edge": 500, "gripper": 80, "push": 200}
 #: Live default for a kind not in LIVE_PARTICLES.
 LIVE_PARTICLES_OTHER = 100
@@ -234,7 +234,7 @@ class FilterCore:
     """The filter node's behaviour without ROS: decoded input messages in (the ``on_*``
     methods, :meth:`process_pending`), output messages out through ``publish(topic, msg)``.
 
-    :class:`FilterNode` wires it to rclpy; offline replay (:mod:`dbcslam_ros.replay`) calls
+    :class:`FilterNode` wires it to rclpy; offline replay (:mod:`dbcslam_ros.offline.replay`) calls
     the same methods in bag order, so live and offline run the same code.
     """
 

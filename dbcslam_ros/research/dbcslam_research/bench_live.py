@@ -1,11 +1,11 @@
 """Live benchmark: the simulator node and the filter node as two processes, in real time.
 
-Run: ``python -m dbcslam_ros.bench_live [--scenarios edge gripper push] [--particles N ...]
+Run: ``python -m dbcslam_research.bench_live [--scenarios edge gripper push] [--particles N ...]
 [--duration S] [--engine pybullet|core] [--offline | --no-live] [--no-pusher-wrench]
 [--out DIR] [--logs DIR]`` (one run per scenario and particle count; -1 = the filter node's
 live default for the kind).
 
-For each scenario it starts ``python -m dbcslam_ros.filter_node`` and ``python -m
+For each scenario it starts ``python -m dbcslam_ros.node.filter_node`` and ``python -m
 sim_publisher.node`` (100 Hz, real-time pacing, default engine pybullet) on loopback in a
 random ``ROS_DOMAIN_ID`` (or ``--domain-id``), listens in-process to ``/object/pose``,
 ``/truth/object/pose``, ``/dbcslam/pose`` and ``/diagnostics`` until the simulator exits,
@@ -22,7 +22,7 @@ and stops both processes by PID (also on failure or Ctrl-C). Reported per scenar
 * with ``--offline`` (or only that, ``--no-live``): CPU time per model step
   (``time.process_time``: another process's load inflates it much less than wall time) of
   the same filter configuration on the same simulated run, fed through
-  :class:`~dbcslam_ros.session.FilterSession` in one process without pacing, plus the CPU
+  :class:`~dbcslam_ros.node.session.FilterSession` in one process without pacing, plus the CPU
   time to build and encode the output messages of a step, and the mean position error /
   noise of that offline run (every pose answered).
 
@@ -189,7 +189,7 @@ def run_live(
         cls("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS, on_diag, reliable
     )
     py = sys.executable
-    filter_cmd = [py, "-m", "dbcslam_ros.filter_node", "--ros-args"]
+    filter_cmd = [py, "-m", "dbcslam_ros.node.filter_node", "--ros-args"]
     filter_cmd += ["-p", f"particles:={particles}", "-p", "diagnostics_period:=0.5"]
     filter_cmd += ["-p", f"use_pusher_wrench:={'true' if pusher_wrench else 'false'}"]
     sim_cmd = [py, "-m", "sim_publisher.node", "--ros-args", "-p", f"scenario:={scenario}"]
@@ -287,8 +287,8 @@ def offline_cpu(
     """
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.convert import JointReading, PoseReading, WrenchReading, estimate_messages
-    from dbcslam_ros.filter_node import PARAMETERS, build_config
-    from dbcslam_ros.session import FilterSession
+    from dbcslam_ros.node.filter_node import PARAMETERS, build_config
+    from dbcslam_ros.node.session import FilterSession
     from sim_publisher.node import make_source
 
     key = (scenario, engine, duration)
@@ -376,7 +376,7 @@ def table(results: Sequence[LiveResult]) -> str:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.bench_live",
+        prog="python -m dbcslam_research.bench_live",
         description="Live benchmark: simulator node + filter node in real time on loopback.",
     )
     p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
@@ -408,7 +408,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; exit 0 on success, 1 when a run failed, 2 on bad arguments."""
-    from dbcslam_ros.filter_node import live_particles
+    from dbcslam_ros.node.filter_node import live_particles
 
     args = parse_args(argv)
     os.environ["ROS_DOMAIN_ID"] = str(
@@ -455,7 +455,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = table(results)
     print(text, end="")
     args.out.mkdir(parents=True, exist_ok=True)
-    command = "python -m dbcslam_ros.bench_live " + " ".join(
+    command = "python -m dbcslam_research.bench_live " + " ".join(
         sys.argv[1:] if argv is None else argv
     )
     (args.out / "bench_live.md").write_text(

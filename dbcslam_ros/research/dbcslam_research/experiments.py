@@ -9,13 +9,13 @@ fixed-friction baseline), then writes into ``--out`` (default ``dbcslam_ros/rese
 * ``edge_*.png`` and ``gripper_*.png``: the paper-style figures of the representative seed
   (the seed with the median DBC-SLAM position RMSE).
 
-Usage: ``python -m dbcslam_ros.experiments [--out DIR] [--seeds N] [--particles N]
+Usage: ``python -m dbcslam_research.experiments [--out DIR] [--seeds N] [--particles N]
 [--scenarios edge,gripper] [--workers W] [--steps N] [--no-fixed] [--no-figures] [--quiet]``.
 
 The formatting, file and CLI helpers here (``targets_table``, ``medians_tables``,
 ``report_sections``, ``report_payload``, ``write_json``, ``save_figures``,
-``add_common_arguments``, ...) are shared with ``dbcslam_ros.experiments_sim`` and
-``dbcslam_ros.bench``.
+``add_common_arguments``, ...) are shared with ``dbcslam_research.experiments_sim`` and
+``dbcslam_research.bench``.
 Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 """
 
@@ -292,7 +292,7 @@ def save_figures(
     """Figures of the representative seed (median DBC-SLAM position RMSE) per scenario:
     edge -> ``save_edge_figures``, others -> ``save_gripper_figures``; file names start with
     ``{prefix}{scenario}`` (e.g. prefix ``sim_`` -> ``sim_push_com.png``)."""
-    from dbcslam_ros.plotting import save_edge_figures, save_gripper_figures
+    from dbcslam_ros.offline.plotting import save_edge_figures, save_gripper_figures
 
     paths: list[Path] = []
     for scen in scenarios:
@@ -393,7 +393,7 @@ def print_checks(checks: Sequence[TargetCheck], say: Callable[[str], None]) -> N
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.experiments",
+        prog="python -m dbcslam_research.experiments",
         description="Run the DBC-SLAM paper experiments (edge, gripper) over seeds and write "
         "a target table (Markdown + JSON) and figures.",
     )
@@ -428,7 +428,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         fixed_friction=not args.no_fixed,
         workers=args.workers,
     )
-    command = command_line("python -m dbcslam_ros.experiments", argv)
+    command = command_line("python -m dbcslam_research.experiments", argv)
     say = progress_printer(args.quiet)
     say(
         f"DBC-SLAM experiments: scenarios {list(scenarios)}, seeds 0..{args.seeds - 1}, "

@@ -50,7 +50,7 @@ from dbcslam_core.experiments import (
     score,
 )
 from dbcslam_core.synthetic import Trajectory
-from dbcslam_ros.experiments import command_line, progress_printer, utc_now, write_json
+from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
 
 __all__ = ["contact_window", "main", "reading_lines", "slice_trajectory"]
 
@@ -324,7 +324,7 @@ def _ints(text: str) -> list[int]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad arguments)."""
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.bench",
+        prog="python -m dbcslam_research.bench",
         description="Per-step time of DBC-SLAM vs particle count and vs a black-box NCP "
         "particle filter (Lemke loop and batched PGS) on the paper's synthetic data.",
     )
@@ -366,7 +366,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
 
     say = progress_printer(args.quiet)
-    command = command_line("python -m dbcslam_ros.bench", argv)
+    command = command_line("python -m dbcslam_research.bench", argv)
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     result = run_bench(

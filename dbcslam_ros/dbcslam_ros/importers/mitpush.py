@@ -7,16 +7,16 @@ Vicon-tracked object frame (x, y, yaw) and the F/T reading (fx, fy, tau_z). File
 ``motion_surface=S_shape=O_a=A_v=V_i=I_s=P_t=T`` (:func:`parse_push_name`).
 
 What this module found in the 50 ABS training pushes and applies (numbers from
-``python -m dbcslam_ros.push_analysis``; see the report in that module):
+``python -m dbcslam_research.push_analysis``; see the report in that module):
 
 * **Shapes.** Any shape with an outline ``shapes/<shape>_ext.npy`` (11 in the dataset; the
   training pushes use 4). Mass and inertia about the centroid are those of a uniform plate
   cut to the outline (:func:`mass_properties`, :mod:`dbcslam_core.mass_properties`):
   stainless steel 7950 kg/m^3, 13 mm, which reproduces the README's four masses within
   0.33 % and inertias within 0.74 % (least-squares density of the four: 7946 kg/m^3).
-* **Frame alignment, estimated** (:mod:`dbcslam_ros.mitpush_align`; ``python -m
-  dbcslam_ros.mitpush_align`` prints the numbers): per shape, over every push file of it in
-  the same directory, the planar map outline file -> tracked frame (yaw, offset, mirrored or
+* **Frame alignment, estimated** (:mod:`dbcslam_ros.importers.mitpush_align`; ``python -m
+  dbcslam_ros.importers.mitpush_align`` prints the numbers): per shape, over every push file of
+  it in the same directory, the planar map outline file -> tracked frame (yaw, offset, mirrored or
   not) that makes the pusher tip touch the outline on in-contact steps and first touch it
   where the file name says (Huber, global search over yaw and both conventions). On the 50
   training pushes the data select the *mirrored* convention for all four shapes (robust cost
@@ -87,6 +87,7 @@ from dbcslam_core.mass_properties import (
     PlateProperties,
     plate_properties,
 )
+from dbcslam_core.polygon import convex_hull
 from dbcslam_core.scenario import PUSH_MODELS
 from dbcslam_ros.errors import BagError
 
@@ -234,7 +235,8 @@ ALIGNMENTS: dict[str, ShapeAlignment] = {
     "hex": ShapeAlignment(_HALF_PI),
 }
 """The hand-fitted per-shape constants of the first importer, kept as the reference the
-estimated alignment (:mod:`dbcslam_ros.mitpush_align`) is compared with; not used to import."""
+estimated alignment (:mod:`dbcslam_ros.importers.mitpush_align`) is compared with; not used
+to import."""
 
 _NAME_RE = re.compile(
     r"motion_surface=(?P<surface>[A-Za-z0-9]+)_shape=(?P<shape>[A-Za-z0-9]+)"
@@ -393,28 +395,6 @@ def find_shapes_dir(h5_path: str | Path) -> Path | None:
     return None
 
 
-def convex_hull(points: FloatArray) -> FloatArray:
-    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
-    pts = sorted({(float(x), float(y)) for x, y in points})
-    scale = max(math.hypot(x, y) for x, y in pts)
-    tol = 1e-10 * scale * scale
-
-    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple[float, float]] = []
-    for q in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= tol:
-            lower.pop()
-        lower.append(q)
-    upper: list[tuple[float, float]] = []
-    for q in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], q) <= tol:
-            upper.pop()
-        upper.append(q)
-    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
-
-
 def _area_centroid(v: FloatArray) -> tuple[float, float, float]:
     x, y = v[:, 0], v[:, 1]
     xn, yn = np.roll(x, -1), np.roll(y, -1)
@@ -429,7 +409,7 @@ def load_outline(shape: str, shapes_dir: str | Path, mirrored: bool = True) -> O
     """Load ``<shapes_dir>/<shape>_ext.npy`` and express it in the body frame.
 
     mirrored: body frame = the x-mirrored file outline (the convention the data selects for
-    every shape of the dataset, see :mod:`dbcslam_ros.mitpush_align`), else the file's.
+    every shape of the dataset, see :mod:`dbcslam_ros.importers.mitpush_align`), else the file's.
 
     Raises:
         MitPushError: missing or malformed outline file.
@@ -512,7 +492,7 @@ def expected_contact(
     if not 0.0 <= position <= 1.0:
         msg = f"contact position s={position} of shape {outline.shape} is outside [0, 1]"
         raise MitPushError(msg)
-    from dbcslam_ros.mitpush_align import named_contact
+    from dbcslam_ros.importers.mitpush_align import named_contact
 
     try:
         bare = named_contact(outline.ordered, side, position, 0.0)
@@ -788,16 +768,17 @@ def resample_push(
     Positions are interpolated linearly, yaw after unwrapping; the F/T force is averaged over
     each step. The clock covers the interval where all three streams have data. alignment:
     the outline's place in the tracked frame; None fits it over the push files of the same
-    shape in the file's directory (:func:`dbcslam_ros.mitpush_align.shape_alignment`). When
-    the alignment's convention (mirrored or not) differs from the outline's, the outline is
-    rebuilt from its file vertices.
+    shape in the file's directory
+    (:func:`dbcslam_ros.importers.mitpush_align.shape_alignment`). When the alignment's
+    convention (mirrored or not) differs from the outline's, the outline is rebuilt from its
+    file vertices.
 
     Raises:
         MitPushError: the streams do not overlap for at least two steps.
     """
     clock = common_clock(raw, config.dt)
     if alignment is None:
-        from dbcslam_ros.mitpush_align import shape_alignment
+        from dbcslam_ros.importers.mitpush_align import shape_alignment
 
         fit = shape_alignment(raw, outline.file_vertices, config.dt, config.contact_threshold)
         alignment = fit.alignment

@@ -1,6 +1,6 @@
 """The discrepancy analysis on the MIT pushes: dynamic vs quasi-static, both splits.
 
-Run ``python -m dbcslam_ros.mitpush_discrepancy [DATA_DIR] --out DIR`` (DATA_DIR default
+Run ``python -m dbcslam_research.mitpush_discrepancy [DATA_DIR] --out DIR`` (DATA_DIR default
 ../shared/data/mit-push; reads ``abs/train``). For each push model (``surface.model``:
 ``dynamic`` and ``quasi_static``) the pushes are imported into bags (``dbcslam
 import-mitpush --push-model M``, noise-free Vicon poses) and split by shape: split ``A`` fits
@@ -15,7 +15,7 @@ on rect1 + hex and holds out ellip1 + ellip3; split ``B`` the reverse. Then, per
 2. *Dynamic vs quasi-static on data.* Held-out evidence of each nominal model at its own
    fitted noise (log-mean-exp over the filter seeds), one-step prediction and tracking RMSE.
 3. *What is still wrong.* The evidence-based ``dbcslam discrepancy`` analysis
-   (`dbcslam_ros.discrepancy_report.run_discrepancy`; every candidate effect of the push
+   (`dbcslam_ros.offline.discrepancy_report.run_discrepancy`; every candidate effect of the push
    vocabulary fitted on the training shapes, compared on the held-out shapes) with each
    model at its fitted noise; report, JSON and figures per model and split in ``--out``.
 
@@ -172,7 +172,7 @@ def run_study(cfg: DiscrepancyStudy, say: Callable[[str], None]) -> dict[str, An
     import tempfile
 
     from dbcslam_core.discrepancy import DiscrepancyConfig
-    from dbcslam_ros.discrepancy_report import load_run, run_discrepancy
+    from dbcslam_ros.offline.discrepancy_report import load_run, run_discrepancy
 
     cfg.out.mkdir(parents=True, exist_ok=True)
     work = cfg.work if cfg.work is not None else Path(tempfile.mkdtemp(prefix="mitpush_disc_"))
@@ -310,7 +310,7 @@ def markdown(summary: dict[str, Any]) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.mitpush_discrepancy",
+        prog="python -m dbcslam_research.mitpush_discrepancy",
         description=(__doc__ or "").split("\n\n")[0],
         epilog=(__doc__ or "").split("\n\n", 1)[1],
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -1,9 +1,9 @@
 """Offline replay: run the filter node's processing over a recorded bag as fast as it can.
 
 ``dbcslam replay BAG -o OUTDIR`` (see :mod:`dbcslam_ros.cli.commands.replay`) calls
-:func:`replay_bag`. The filter is the live node's own code (:class:`~dbcslam_ros.filter_node.
-FilterCore`, the object the live :class:`~dbcslam_ros.filter_node.FilterNode` wraps: the same
-:class:`~dbcslam_ros.session.FilterSession`, input validation, gating and message building),
+:func:`replay_bag`. The filter is the live node's own code (:class:`~dbcslam_ros.node.filter_node.
+FilterCore`, the object the live :class:`~dbcslam_ros.node.filter_node.FilterNode` wraps: the same
+:class:`~dbcslam_ros.node.session.FilterSession`, input validation, gating and message building),
 without any ROS node: every input message of the bag is handed to the core's callback for its
 topic in log-time order, and each
 ``/object/pose`` is processed at once (no backlog, no dropped poses, no wall-clock effects).
@@ -20,8 +20,8 @@ Output bag (a rosbag2 MCAP directory, OUTDIR):
 * ``/diagnostics`` every ``diagnostics_period`` seconds of bag time (stamp and log time: the
   latest estimate's stamp).
 
-Next to the bag files: ``metrics.json`` (:func:`dbcslam_ros.evaluate.evaluate_bag`; without
-truth topics only the counts and timings) and PNG plots (:mod:`dbcslam_ros.report`).
+Next to the bag files: ``metrics.json`` (:func:`dbcslam_ros.offline.evaluate.evaluate_bag`; without
+truth topics only the counts and timings) and PNG plots (:mod:`dbcslam_ros.offline.report`).
 
 The module also writes contract bags from the core's synthetic trajectories
 (:func:`write_trajectory_bag`), the same messages the simulator node's ``core`` engine
@@ -84,7 +84,7 @@ class ReplayOptions:
 
     Attributes:
         params: filter node parameters (name -> value) overriding the node's defaults; see
-            :data:`dbcslam_ros.filter_node.PARAMETERS`.
+            :data:`dbcslam_ros.node.filter_node.PARAMETERS`.
         salvage: read a damaged bag up to the damage instead of failing.
         plots: write PNG plots next to the bag.
         progress: stream for the progress line (None: silent).
@@ -133,7 +133,7 @@ def load_filter_params(path: str | Path) -> dict[str, Any]:
     Accepts ``dbcslam_filter: {ros__parameters: {...}}`` (any node name, or ``/**``) or a
     plain mapping of parameter names. Unknown names raise UsageError listing the valid ones.
     """
-    from dbcslam_ros.filter_node import PARAMETERS
+    from dbcslam_ros.node.filter_node import PARAMETERS
 
     p = Path(path)
     try:
@@ -241,7 +241,7 @@ def replay_bag(
     """
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.errors import ParameterError
-    from dbcslam_ros.filter_node import OUTPUT_TYPES, FilterCore, coerce_params
+    from dbcslam_ros.node.filter_node import OUTPUT_TYPES, FilterCore, coerce_params
 
     opts = options or ReplayOptions()
     src = Path(bag)
@@ -353,7 +353,7 @@ def replay_bag(
 def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:
     """How the estimates recorded in the source bag (e.g. a live run) compare with the
     replayed ones at the same stamps (m; differences of the planar position)."""
-    from dbcslam_ros.evaluate import load_bag_arrays
+    from dbcslam_ros.offline.evaluate import load_bag_arrays
 
     before = load_bag_arrays(src, salvage=salvage)
     after = load_bag_arrays(out)
@@ -370,13 +370,13 @@ def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:
 
 def _products(out: Path, opts: ReplayOptions) -> tuple[dict[str, Any], tuple[Path, ...]]:
     """metrics (truth optional) and plots of a replayed bag."""
-    from dbcslam_ros.evaluate import evaluate_bag, load_bag_arrays
+    from dbcslam_ros.offline.evaluate import evaluate_bag, load_bag_arrays
 
     arrays = load_bag_arrays(out)
     metrics = evaluate_bag(out, require_truth=False, arrays=arrays)
     plots: tuple[Path, ...] = ()
     if opts.plots:
-        from dbcslam_ros.report import save_bag_figures
+        from dbcslam_ros.offline.report import save_bag_figures
 
         plots = tuple(save_bag_figures(arrays, out))
     return metrics, plots

@@ -44,7 +44,7 @@ outline more than 3 mm (Hausdorff distance) from where the pooled fit puts it, w
 own residuals are as small. So a push's alignment is fitted over every push file of its shape
 in its directory (:func:`shape_alignment`; the dataset's ``abs/train`` holds 10-14 per
 shape), the same whichever of them are imported and in which order. See
-:mod:`dbcslam_ros.mitpush` for the numbers on the dataset.
+:mod:`dbcslam_ros.importers.mitpush` for the numbers on the dataset.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_ros import mitpush as mp
+from dbcslam_ros.importers import mitpush as mp
 
 __all__ = [
     "HUBER_SCALE",
@@ -410,9 +410,9 @@ def _reference_stats(
 def main(argv: Sequence[str] | None = None) -> int:
     """Print the pooled alignment of every shape of a dataset and how well it is determined.
 
-    ``python -m dbcslam_ros.mitpush_align [DATA_DIR]`` (default ../shared/data/mit-push):
+    ``python -m dbcslam_ros.importers.mitpush_align [DATA_DIR]`` (default ../shared/data/mit-push):
     per shape the fit, both conventions' costs, residuals, the first importer's constants
-    (:data:`dbcslam_ros.mitpush.ALIGNMENTS`) on the same evidence, a jackknife standard
+    (:data:`dbcslam_ros.importers.mitpush.ALIGNMENTS`) on the same evidence, a jackknife standard
     error over the files, and how many single-file fits land elsewhere.
     """
     import sys

@@ -1,6 +1,6 @@
 """Benchmark of the discrepancy analysis: hidden effects in seeded random draws.
 
-``python -m dbcslam_ros.science --out DIR [--draws 30] [--clean 30] [--particles 300]``
+``python -m dbcslam_research.science --out DIR [--draws 30] [--clean 30] [--particles 300]``
 (``make science``). Edge scenario as in the paper (point mass, rough mu 0.9 region between
 smooth mu 0.3 edge, 1 cm pose noise), data from `synthetic.edge_sweep_trajectory` (10 s,
 swept across the regions, two lift-offs): per draw i one effect uniformly from
@@ -17,7 +17,7 @@ a training run and an independent held-out run; clean draws hide nothing. Each d
 Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table) after every
 draw, so an interrupted run leaves its partial table; progress on stderr. Parts of the
 benchmark can run as separate processes (``--start``, ``--draws``, ``--clean``) and be
-merged: ``python -m dbcslam_ros.science --out DIR --merge PART_DIR ...``.
+merged: ``python -m dbcslam_research.science --out DIR --merge PART_DIR ...``.
 """
 
 from __future__ import annotations
@@ -169,7 +169,7 @@ def merge(out: Path, parts: list[Path]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.science",
+        prog="python -m dbcslam_research.science",
         description=__doc__.split("\n\n")[0] if __doc__ else None,
     )
     ap.add_argument("--out", required=True, type=Path, help="output directory")

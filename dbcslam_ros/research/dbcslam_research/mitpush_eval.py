@@ -1,18 +1,18 @@
 """The filter on measured MIT pushes: import, replay, evaluate, tabulate (issue "Measured data").
 
-``python -m dbcslam_ros.mitpush_eval [--data DIR] [--out DIR] [--particles N] [--jobs 2]``
+``python -m dbcslam_research.mitpush_eval [--data DIR] [--out DIR] [--particles N] [--jobs 2]``
 
 1. Imports every push file of the data (``--data``: the dataset root, whose ``abs/train`` split
    is used when present, or any directory/file of ``.h5`` pushes; default the shared copy
    ``../shared/data/mit-push`` next to the repository) with Gaussian noise added to the
    observed pose (``--noise-position`` 5 mm, ``--noise-yaw`` 0.05 rad, ``--seed``) into
-   bags (:mod:`dbcslam_ros.cli.commands.import_mitpush`; a temporary directory, or
+   bags (:mod:`dbcslam_ros.importers.mitpush_bag`; a temporary directory, or
    ``--work DIR`` to keep them and the replays). Friction candidates: pusher 0.1 0.2 0.3 (the
    importer's), surface :data:`SURFACE_CANDIDATES` 0.2-0.5 (from the training pushes' F/T,
    see there); ``--pusher-candidates`` / ``--surface-candidates`` override them.
-2. Replays each bag with the filter node's code (:func:`dbcslam_ros.replay.replay_bag`,
+2. Replays each bag with the filter node's code (:func:`dbcslam_ros.offline.replay.replay_bag`,
    ``--particles``, markers off) in ``--jobs`` worker processes.
-3. Evaluates each replay (:func:`dbcslam_ros.evaluate.evaluate_bag`): position and yaw RMSE
+3. Evaluates each replay (:func:`dbcslam_ros.offline.evaluate.evaluate_bag`): position and yaw RMSE
    against the clean (aligned Vicon) pose, also as a multiple of the *added* noise std;
    agreement of "P(pusher not separated) > 0.5" with the measured contact flag
    (``/pusher/contact``: F/T force magnitude > 0.25 N, geometric for the ``rect1`` files
@@ -114,7 +114,7 @@ class EvalOptions:
     surface default here is :data:`SURFACE_CANDIDATES`). reuse: re-evaluate
     the replays already in ``work`` (a previous run's) instead of importing and replaying.
     push_model: the scenarios' ``surface.model`` (None: the importer's default,
-    :data:`dbcslam_ros.mitpush.DEFAULT_PUSH_MODEL`).
+    :data:`dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL`).
     """
 
     data: Path = DEFAULT_DATA
@@ -141,7 +141,7 @@ def resolve_data(data: str | Path) -> list[Path]:
     Raises:
         UsageError: no such path or no push file in it.
     """
-    from dbcslam_ros.mitpush import MitPushError, push_files
+    from dbcslam_ros.importers.mitpush import MitPushError, push_files
 
     root = Path(data)
     if not root.exists():
@@ -165,7 +165,7 @@ def resolve_data(data: str | Path) -> list[Path]:
 def filter_uses_pusher_wrench(params: dict[str, Any] | None = None) -> bool:
     """True when the filter node with these parameters uses ``/pusher/wrench`` as a force
     observation (it subscribes to it and its ``use_pusher_wrench`` parameter is on)."""
-    from dbcslam_ros.filter_node import INPUT_TOPICS, coerce_params
+    from dbcslam_ros.node.filter_node import INPUT_TOPICS, coerce_params
 
     return "/pusher/wrench" in INPUT_TOPICS and bool(
         coerce_params(params or {})["use_pusher_wrench"]
@@ -174,14 +174,14 @@ def filter_uses_pusher_wrench(params: dict[str, Any] | None = None) -> bool:
 
 def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[str, Any]]:
     """Import every file into ``bags_dir``; per push: name, shape, bag path, contact source."""
-    from dbcslam_ros.cli.commands.import_mitpush import write_push_bag
-    from dbcslam_ros.mitpush import (
+    from dbcslam_ros.importers.mitpush import (
         Outline,
         find_shapes_dir,
         load_outline,
         load_push,
         resample_push,
     )
+    from dbcslam_ros.importers.mitpush_bag import write_push_bag
 
     config = _import_config(opts)
     outlines: dict[tuple[str, Path], Outline] = {}
@@ -211,7 +211,7 @@ def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[s
 
 
 def _import_config(opts: EvalOptions) -> Any:
-    from dbcslam_ros.mitpush import ImportConfig
+    from dbcslam_ros.importers.mitpush import ImportConfig
 
     cands: dict[str, Any] = {}
     if opts.pusher_candidates is not None:
@@ -245,7 +245,7 @@ def _replayed_by(work: Path) -> dict[str, Any] | None:
 def _reevaluate(bags_dir: Path, replays_dir: Path) -> list[dict[str, Any]]:
     """Pushes of an earlier run (its imported bags and replays), evaluated again."""
     from dbcslam_ros.bag.metadata import load_metadata
-    from dbcslam_ros.evaluate import evaluate_bag
+    from dbcslam_ros.offline.evaluate import evaluate_bag
 
     pushes: list[dict[str, Any]] = []
     for rep in sorted(d for d in replays_dir.iterdir() if (d / "metrics.json").exists()):
@@ -272,7 +272,7 @@ def _reevaluate(bags_dir: Path, replays_dir: Path) -> list[dict[str, Any]]:
 
 def _replay_one(bag: str, out: str, params: dict[str, Any]) -> dict[str, Any]:
     """Worker: replay one bag; its metrics (evaluate's dict incl. the replay summary)."""
-    from dbcslam_ros.replay import ReplayOptions, replay_bag
+    from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
 
     res = replay_bag(bag, out, ReplayOptions(params=params, plots=False, overwrite=True))
     return res.metrics
@@ -472,7 +472,7 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from dbcslam_ros.evaluate import NS, load_bag_arrays
+    from dbcslam_ros.offline.evaluate import NS, load_bag_arrays
 
     agree = np.asarray([_num(r["metrics"].get("contact_flag_agreement")) for r in rows])
     order = np.argsort(np.where(np.isfinite(agree), agree, np.inf))
@@ -706,7 +706,7 @@ def _replay_all(pushes: list[dict[str, Any]], params: dict[str, Any], opts: Eval
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.mitpush_eval",
+        prog="python -m dbcslam_research.mitpush_eval",
         description=(__doc__ or "").split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -803,7 +803,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             None if args.surface_candidates is None else tuple(args.surface_candidates)
         ),
     )
-    command = "python -m dbcslam_ros.mitpush_eval " + " ".join(
+    command = "python -m dbcslam_research.mitpush_eval " + " ".join(
         sys.argv[1:] if argv is None else list(argv)
     )
     try:

@@ -14,8 +14,8 @@ While the simulator runs, a progress line shows the simulated time (poses record
 and the number of estimates, from the recorder's once-a-second counts. When the simulator
 has exited the demo lets the filter drain (until no new estimate arrived for ``drain_s``),
 stops the filter and then the recorder with SIGINT (SIGKILL after a timeout), evaluates the
-bag (:func:`dbcslam_ros.evaluate.evaluate_bag`), prints the summary table and writes
-``metrics.json`` and the PNG plots (:func:`dbcslam_ros.report.save_bag_figures`) into the
+bag (:func:`dbcslam_ros.offline.evaluate.evaluate_bag`), prints the summary table and writes
+``metrics.json`` and the PNG plots (:func:`dbcslam_ros.offline.report.save_bag_figures`) into the
 bag directory, next to its files.
 """
 
@@ -36,7 +36,7 @@ from typing import IO, Any
 
 from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, SCENARIO
 from dbcslam_ros.errors import DbcSlamRosError, UsageError
-from dbcslam_ros.filter_node import LIVE_PARTICLES
+from dbcslam_ros.node.filter_node import LIVE_PARTICLES
 
 __all__ = ["DEFAULT_PARTICLES", "SCENARIOS", "DemoError", "DemoOptions", "DemoResult", "run_demo"]
 
@@ -320,7 +320,12 @@ def _summarise(
     started: float,
     say: Any,
 ) -> DemoResult:
-    from dbcslam_ros.evaluate import evaluate_bag, load_bag_arrays, metrics_table, write_metrics
+    from dbcslam_ros.offline.evaluate import (
+        evaluate_bag,
+        load_bag_arrays,
+        metrics_table,
+        write_metrics,
+    )
 
     arrays = load_bag_arrays(bag, salvage=True)
     if arrays.counts.get(SCENARIO, 0) > 1:
@@ -338,7 +343,7 @@ def _summarise(
     }
     plots: list[Path] = []
     if opts.plots:
-        from dbcslam_ros.report import save_bag_figures
+        from dbcslam_ros.offline.report import save_bag_figures
 
         plots = save_bag_figures(arrays, bag)
     wall = time.monotonic() - started

@@ -19,7 +19,7 @@ baseline frozen to each candidate and on push also DBC-SLAM without the force re
   ``sim_push_offcentre_*.png``: figures of one seed (the
   seed with the median DBC-SLAM position RMSE).
 
-Differences from the synthetic experiments (``dbcslam_ros.experiments``), all forced by the
+Differences from the synthetic experiments (``dbcslam_research.experiments``), all forced by the
 data: the edge's true friction layout is the simulator's segment table
 (``EdgeParams.segments``), so the friction-map truth per cell and the shaded rough region come
 from it (a cell counts only if its true coefficient is constant over the cell); the push
@@ -27,7 +27,7 @@ simulation declares its support friction pair (``support_pair="surface"``) so th
 filter knows the object rests on a frictional table (with the simulator default, no pair and
 no ``surface.mu``, the filter's model is a frictionless table and the object coasts).
 
-Usage: ``python -m dbcslam_ros.experiments_sim [--out DIR] [--seeds N] [--particles N]
+Usage: ``python -m dbcslam_research.experiments_sim [--out DIR] [--seeds N] [--particles N]
 [--duration S] [--scenarios edge,gripper,push,push_offcentre] [--workers W]
 [--push-support-pair NAME|none] [--no-fixed] [--no-force-baseline] [--no-figures] [--quiet]``.
 Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
@@ -72,7 +72,7 @@ from dbcslam_core.metrics import friction_map_accuracy, position_rmse, slid_cell
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
-from dbcslam_ros.experiments import (
+from dbcslam_research.experiments import (
     TABLE_METRICS,
     print_checks,
     progress_printer,
@@ -496,7 +496,7 @@ def write_outputs(
     }
     write_json(paths[1], payload)
     if figures:
-        from dbcslam_ros.plotting import save_edge_figures, save_gripper_figures
+        from dbcslam_ros.offline.plotting import save_edge_figures, save_gripper_figures
 
         for scen in cfg.scenarios:
             seed = results.representative_seed(scen)
@@ -530,7 +530,7 @@ def save_push_figures(trace: RunTrace, out_dir: Path, prefix: str = "sim_push") 
     ``{prefix}_contact.png`` (P(pusher contact) and P(sticking | contact), truth shaded),
     ``{prefix}_friction.png`` (pusher-pair friction posterior) and ``{prefix}_overview.png``.
     """
-    from dbcslam_ros.plotting import (
+    from dbcslam_ros.offline.plotting import (
         plot_contact_probability,
         plot_friction_posterior,
         plot_stick_probability,
@@ -605,7 +605,7 @@ def save_push_figures(trace: RunTrace, out_dir: Path, prefix: str = "sim_push") 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m dbcslam_ros.experiments_sim",
+        prog="python -m dbcslam_research.experiments_sim",
         description="Run DBC-SLAM on pybullet simulations (edge, gripper, push) over seeds and "
         "write a target table (Markdown + JSON) and figures (issue 4).",
     )
@@ -675,7 +675,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     argv_list = list(sys.argv[1:] if argv is None else argv)
-    command = " ".join(["python -m dbcslam_ros.experiments_sim", *argv_list])
+    command = " ".join(["python -m dbcslam_research.experiments_sim", *argv_list])
 
     say = progress_printer(args.quiet)
     say(

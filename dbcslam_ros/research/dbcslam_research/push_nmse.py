@@ -23,7 +23,7 @@ and (`dbcslam_core.quasi_static`, the motion cone on an ellipsoidal limit surfac
   expressed as the vocabulary effect ``support_concentration`` (centre_fraction = 1 - k,
   for k <= 1; k > 1 would be a rim-heavy pressure, ``support_pressure``).
 
-Run: ``python -m dbcslam_ros.push_nmse [DATA] --out DIR`` (DATA: the dataset folder with
+Run: ``python -m dbcslam_research.push_nmse [DATA] --out DIR`` (DATA: the dataset folder with
 ``abs/train`` and ``shapes``, default ``../shared/data/mit-push``); writes ``push_nmse.md``,
 ``push_nmse.json`` and ``push_nmse.png`` (predicted vs measured final displacement).
 """
@@ -44,7 +44,7 @@ from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.quasi_static import limit_surface_c, rollout_push
 from dbcslam_core.scenario import push_scenario
-from dbcslam_ros.mitpush import (
+from dbcslam_ros.importers.mitpush import (
     PUSHER_RADIUS,
     ImportConfig,
     load_outline,

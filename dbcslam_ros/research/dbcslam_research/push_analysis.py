@@ -1,10 +1,10 @@
 """How the MIT pushes really move: alignment fit, F/T findings, quasi-static prediction.
 
-Run ``python -m dbcslam_ros.push_analysis [DATA_DIR]`` (default: ../shared/data/mit-push,
+Run ``python -m dbcslam_research.push_analysis [DATA_DIR]`` (default: ../shared/data/mit-push,
 relative to the working directory; reads ``abs/train/*.h5`` and ``shapes/``). It prints, per shape:
 
 1. Alignment: the first-contact location error and tip-outline gap with the importer's
-   constants (:data:`dbcslam_ros.mitpush.ALIGNMENTS`), and an unconstrained least-squares
+   constants (:data:`dbcslam_ros.importers.mitpush.ALIGNMENTS`), and an unconstrained least-squares
    fit of (yaw correction, tracked-frame offset) for comparison.
 2. Clocks: stream start offsets; object-stop minus tip-stop time in near-sticking pushes.
    F/T: stale streams, noise floor at rest, the friction tilt of the force direction
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dbcslam_ros import mitpush as mp
+from dbcslam_ros.importers import mitpush as mp
 
 __all__ = [
     "PushMotion",

@@ -232,10 +232,10 @@ def filter_tracking(
     ``rmse_vs_observations`` (``gain_basis`` names which). The truth topics are read here
     only, never by the analysis itself.
     """
-    from dbcslam_ros.evaluate import load_bag_arrays, match_stamps
-    from dbcslam_ros.filter_node import load_extensions
-    from dbcslam_ros.replay import ReplayOptions, replay_bag
-    from dbcslam_ros.session import observation_correction
+    from dbcslam_ros.node.filter_node import load_extensions
+    from dbcslam_ros.node.session import observation_correction
+    from dbcslam_ros.offline.evaluate import load_bag_arrays, match_stamps
+    from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
 
     out: dict[str, Any] = {"particles": particles, "bags": [str(b) for b in bags]}
     tol = 5_000_000

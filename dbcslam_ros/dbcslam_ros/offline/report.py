@@ -1,8 +1,8 @@
 """Plots and summaries of a bag's estimates (used by ``dbcslam replay`` and ``dbcslam demo``).
 
 :func:`save_bag_figures` draws paper-style figures from the arrays of
-:func:`dbcslam_ros.evaluate.load_bag_arrays`, reusing the panel functions of
-:mod:`dbcslam_ros.plotting`, and writes them as PNG files:
+:func:`dbcslam_ros.offline.evaluate.load_bag_arrays`, reusing the panel functions of
+:mod:`dbcslam_ros.offline.plotting`, and writes them as PNG files:
 
 * ``trajectory.png``: estimate vs truth vs observations (edge: x over time with the truly
   sticking spans shaded, and the x-y path along the edge; gripper/push: x-y path and yaw);
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dbcslam_ros.evaluate import NS, BagArrays, match_stamps
+from dbcslam_ros.offline.evaluate import NS, BagArrays, match_stamps
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -78,7 +78,7 @@ def save_bag_figures(arrays: BagArrays, out_dir: str | Path) -> list[Path]:
     """
     import matplotlib.pyplot as plt
 
-    from dbcslam_ros import plotting as pl
+    from dbcslam_ros.offline import plotting as pl
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
