@@ -472,6 +472,33 @@ class DbcSlamFilter:
         self._obs_model = PoseObservationModel(
             self.nq, scenario.noise.position, scenario.noise.yaw if self.nq == 3 else 0.0
         )
+        self._init_contacts()
+        self._init_friction()
+        self._scales = ViolationScales(
+            impulse=cfg.violation_impulse,
+            velocity=cfg.violation_velocity,
+            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
+        )
+        self._resampler = make_resampler(cfg.resampler)
+        prior = scenario.friction.prior
+        self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
+        self._initialised = False
+        self._step = 0
+        self._joints_prev: FloatArray | None = None
+        self._joint_filter = JointSmoother(
+            len(scenario.joints),
+            self.dt,
+            scenario.noise.joint,
+            cfg.joint_accel_std,
+            maneuver_accel_std=cfg.joint_maneuver_accel_std,
+        )
+        self.particles = self._empty_particles()
+
+    def _init_contacts(self) -> None:
+        """Static contact structure: layout for the geometric exclusions, friction pair and
+        obstacle of each contact, edge partners, the default force obstacle (a single
+        disk: the pusher)."""
+        scenario = self.scenario
         pcs = scenario.potential_contacts
         self._layout = ContactLayout(
             feature_vertex=tuple(c.vertex for c in pcs),
@@ -497,7 +524,12 @@ class DbcSlamFilter:
         self._contact_obstacle = np.asarray([c.obstacle for c in pcs], dtype=np.int64)
         disks = [i for i, o in enumerate(obstacles) if isinstance(o, Disk)]
         self._default_force_obstacle: int | None = disks[0] if len(disks) == 1 else None
-        fr = scenario.friction
+
+    def _init_friction(self) -> None:
+        """Joint friction hypotheses beta (B, pairs), their coefficients per contact, the
+        friction bank's copies, the support coefficient per hypothesis and the priors."""
+        cfg = self.config
+        fr = self.scenario.friction
         self.n_pairs = len(fr.pairs)
         self._n_cand = [len(c) for c in fr.candidates]
         self._k_max = max(self._n_cand)
@@ -528,7 +560,6 @@ class DbcSlamFilter:
         self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
         self._n_sub = self.n_b if self._bank else 1
         self.n_fb = 1 if self._bank else self.n_b
-        n_sub_particles = cfg.particles * self._n_sub
         self._sub_b: IntArray | None = (
             np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
         )
@@ -555,26 +586,19 @@ class DbcSlamFilter:
                 pri = pri * self._prior_pair[p][beta[:, p]]
             self._prior_b = pri / pri.sum()
         self._prior_fb = np.ones(1) if self._bank else self._prior_b  # arrays' friction axis
-        self._scales = ViolationScales(
-            impulse=cfg.violation_impulse,
-            velocity=cfg.violation_velocity,
-            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
-        )
-        self._resampler = make_resampler(cfg.resampler)
-        self.map = FrictionMap(fr.prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
-        self._initialised = False
-        self._step = 0
-        self._joints_prev: FloatArray | None = None
-        self._joint_filter = JointSmoother(
-            len(scenario.joints),
-            self.dt,
-            scenario.noise.joint,
-            cfg.joint_accel_std,
-            maneuver_accel_std=cfg.joint_maneuver_accel_std,
-        )
+        # contacts of each friction pair (None: all contacts belong to the pair)
+        self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
+            None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
+            for pr in range(self.n_pairs)
+        ]
+
+    def _empty_particles(self) -> ParticleSet:
+        """The particle set before initialisation (all contacts separated, prior friction)."""
+        cfg = self.config
+        n_sub_particles = cfg.particles * self._n_sub
         modes0 = np.zeros((n_sub_particles, self.n_fb, self.n_c, N_MODES))
         modes0[..., Mode.SEPARATED] = 1.0
-        self.particles = ParticleSet(
+        return ParticleSet(
             q=np.zeros((n_sub_particles, self.nq)),
             v=np.zeros((n_sub_particles, self.nq)),
             log_w=np.zeros(cfg.particles),
@@ -586,11 +610,6 @@ class DbcSlamFilter:
             bank=np.tile(self._prior_b, (cfg.particles, 1)) if self._bank else None,
             copies=self._n_sub,
         )
-        # contacts of each friction pair (None: all contacts belong to the pair)
-        self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
-            None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
-            for pr in range(self.n_pairs)
-        ]
 
     # ------------------------------------------------------------- particle arrays
     @property
