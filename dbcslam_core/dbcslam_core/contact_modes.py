@@ -958,13 +958,26 @@ def enumerate_hypotheses(
     boundary of a truncated enumeration (numpy's argpartition leaves it unspecified).
     """
     mg = np.asarray(marginals, dtype=np.float64)
-    n_p, n_c, _ = mg.shape
+    if mg.ndim != 3 or mg.shape[-1] != N_MODES:
+        msg = f"marginals must be (particles, contacts, {N_MODES}), got shape {mg.shape}"
+        raise SolverError(msg)
     if compiled is None:
         compiled = kernels.AVAILABLE
-    if compiled:
-        return _enumerate_compiled(
-            mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
-        )
+    enumerate_ = _enumerate_compiled if compiled else _enumerate_numpy
+    return enumerate_(mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples)
+
+
+def _enumerate_numpy(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> Hypotheses:
+    """`enumerate_hypotheses` with batched numpy operations (the reference path)."""
+    n_p, n_c, _ = mg.shape
     order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4)
     sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
     live = sp >= threshold
