@@ -32,13 +32,20 @@ from dbcslam_core.discrepancy import (
     split_runs,
 )
 from dbcslam_core.discrepancy.analysis import HeldScores, beats, compare, verdict
-from dbcslam_core.discrepancy.fitting import FitResult, fit_1d
+from dbcslam_core.discrepancy.fitting import (
+    FitResult,
+    FitSteps,
+    drive,
+    drive_all,
+    fit_1d,
+    fit_effect_steps,
+)
 from dbcslam_core.discrepancy.report import CandidateFit
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.scenario import edge_scenario
 from dbcslam_core.synthetic import draw_edge_effect, edge_sweep_trajectory
 
-CFG = DiscrepancyConfig(particles=200, pictures=False)
+CFG = DiscrepancyConfig(particles=200, pictures=False, workers=2)
 DURATION = 6.0
 
 
@@ -59,8 +66,8 @@ def _close(name: str, got: float, true: float) -> bool:
     return abs(got - true) <= 0.25 * abs(true)
 
 
-# each analysis is ~40 filter runs (~1.5 s CPU each here): longer than the default per-test
-# timeout when the machine is shared
+# each analysis is ~15-25 filter runs (~1 s CPU each here, 2 processes): longer than the default
+# per-test timeout when the machine is shared
 SLOW = pytest.mark.timeout(1500)
 
 
@@ -155,6 +162,9 @@ class _FakeScorer:
     def score(self, h: Hypothesis, runs: object, seed: int | None = None) -> _FakeScore:
         return _FakeScore(0.0 if h.effect == "none" else 5000.0 + (seed or 0))
 
+    def prefetch(self, jobs: object) -> None:
+        pass
+
 
 def test_estimate_at_a_bound_is_never_named() -> None:
     from dbcslam_core.discrepancy.analysis import _Prepared
@@ -170,7 +180,7 @@ def test_estimate_at_a_bound_is_never_named() -> None:
         FitResult("viscous_damping", {"b": 8.0}, {"b": math.inf}, 10.0, 5000.0, True, True, 9),
         FitResult("input_gain", {"factor": 1.4}, {"factor": 0.01}, 10.0, 4000.0, False, True, 9),
     ]
-    cands = compare(prep, fits, _FakeScorer(), CFG)  # type: ignore[arg-type]
+    cands, _ = compare(prep, fits, _FakeScorer(), CFG)  # type: ignore[arg-type]
     by = {c.effect: c for c in cands}
     assert not by["viscous_damping"].clear and "bound" in by["viscous_damping"].note
     assert by["input_gain"].clear
@@ -244,6 +254,55 @@ def test_score_is_deterministic_for_a_seed() -> None:
     assert a.loglik == b.loglik and math.isfinite(a.loglik)
     assert a.n_obs == run.t.size - ScoreConfig().skip
     assert 0.0 < a.pred_rmse < 0.05
+
+
+def test_worker_pool_gives_the_serial_scores() -> None:
+    """Filter runs in the process pool are the serial ones (deterministic per seed)."""
+    tr = edge_sweep_trajectory(5, duration=1.0)
+    run = Run("r", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+    hyps = [Hypothesis(), Hypothesis.make("viscous_damping", {"b": 1.5})]
+    serial = Scorer(ScoreConfig(particles=40))
+    with Scorer(ScoreConfig(particles=40, workers=2)) as pooled:
+        pooled.prefetch((h, [run], s) for h in hyps for s in (0, 1))
+        assert pooled.evaluations == 4 and pooled.cpu_seconds > 0.0
+        for h in hyps:
+            for s in (0, 1):
+                a, b = serial.trace(h, run, s), pooled.trace(h, run, s)
+                np.testing.assert_array_equal(a.ll, b.ll)
+                np.testing.assert_array_equal(a.pred, b.pred)
+        assert pooled.evaluations == 4  # all served from the cache
+
+
+def test_fits_driven_in_step_equal_fits_driven_alone() -> None:
+    """`drive_all` (one batch per round over several fits) changes nothing but the order."""
+    peaks = {"viscous_damping": 3.1, "sensor_delay": 0.061, "friction_scale": 1.37}
+
+    def value(effect: str, x: float) -> float:
+        p = peaks[effect]
+        return -4000.0 * (math.log(x / p) if effect == "friction_scale" else (x - p) / p) ** 2
+
+    def score(h: Hypothesis) -> float:
+        ((_, x),) = h.params
+        return value(h.effect, x)
+
+    sc = edge_scenario()
+    batches: list[int] = []
+
+    def batch(hs: list[Hypothesis]) -> list[float]:
+        batches.append(len(hs))
+        return [score(h) for h in hs]
+
+    def steps(e: str) -> FitSteps[FitResult]:
+        run = Run("r", sc, np.zeros(1), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 0)))
+        return fit_effect_steps(e, [run], value(e, 1.0 if e == "friction_scale" else 0.0), 30.0)
+
+    together = drive_all([steps(e) for e in peaks], batch)
+    alone = [drive(steps(e), lambda hs: [score(h) for h in hs]) for e in peaks]
+    assert together == alone
+    assert max(batches) >= len(peaks)  # the first round held a point of every fit
+    for f, (e, p) in zip(together, peaks.items(), strict=True):
+        (x,) = f.params.values()
+        assert f.refined and x == pytest.approx(p, rel=0.05), (e, f.params)
 
 
 def test_split_runs() -> None:

@@ -48,7 +48,7 @@ def _rng(name: str) -> np.random.Generator:
     return np.random.default_rng([20261121, *map(ord, name)])
 
 
-CFG = DiscrepancyConfig(particles=200, pictures=False)
+CFG = DiscrepancyConfig(particles=200, pictures=False, workers=2)
 pytestmark = pytest.mark.timeout(1500)  # one analysis: ~40 filter runs
 
 

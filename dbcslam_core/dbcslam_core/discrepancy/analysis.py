@@ -1,24 +1,30 @@
 """`analyse`: prepare -> fit -> compare -> verdict, on the filter's own evidence.
 
 1. prepare: split the runs (`runs.split_runs`), score the nominal model on the training
-   runs (`scoring.Scorer`: the filter's summed log predictive likelihood, fixed seed:
-   common random numbers across all candidates and parameters) and on the held-out runs
-   with the seed and `noise_seeds` (mean and Monte-Carlo std of the held-out score).
-2. fit: every candidate effect on the training runs (`fitting.fit_effect`): first the
-   coarse grids of all; the `refine_best` (3) effects with the largest training gain above
-   `screen` nats are then refined (golden section) and go on to the held-out test; the
-   others cannot be named (this saves filter runs: a winner must also fit the training
-   runs among the best; 3 keeps mass_scale / input_gain together with a third).
-3. compare: each refined fit is scored on the held-out runs with the same seeds; a model's
-   held-out evidence is the log-mean-exp of its seed scores (`HeldScores`: the Monte-Carlo
-   estimate of the log marginal likelihood); delta_loglik = that of the extended model
-   minus the nominal model's. The Monte-Carlo noise is one-sided: a mis-specified model's
-   filter loses track at times and only ever scores lower (seed-to-seed std of hundreds of
-   nats, against a few nats for a well-specified model). A candidate beats the nominal
-   model clearly (`beats`) when its evidence exceeds the nominal model's BEST seed by
-   k/2 ln(N_heldout) + min_margin (a BIC-like parameter penalty) + z x its own standard
-   error, the effect is large enough to matter (`effects.effect_size` >= 1) and its
-   estimate is not at a bound of its search range.
+   runs and on the held-out runs (`scoring.Scorer`: the filter's summed log predictive
+   likelihood, fixed seed: common random numbers across all candidates and parameters).
+2. fit: every candidate effect on the training runs (`fitting.fit_effect_steps`): first the
+   coarse grids of all (walked outwards, a side stops when the score drops); the effects of
+   the `refine_best` (2) classes with the largest training gain above `screen` nats are
+   then refined (parabolic) and go on to the held-out test; the others cannot be named
+   (a winner must also fit the training runs among the best). A class is one effect, or
+   an `EQUIVALENT` set (mass_scale / input_gain: refined and tested together).
+3. compare: each refined, valid fit (not at a bound, large enough) is scored on the
+   held-out runs with the seed and `noise_seeds`; a model's held-out evidence is the
+   log-mean-exp of its seed scores (`HeldScores`: the Monte-Carlo estimate of the log
+   marginal likelihood); delta_loglik = that of the extended model minus the nominal
+   model's. The Monte-Carlo noise is one-sided: a mis-specified model's filter loses track
+   at times and only ever scores lower (seed-to-seed std of hundreds of nats, against a
+   few nats for a well-specified model). A candidate beats the nominal model clearly
+   (`beats`) when its evidence exceeds the nominal model's BEST seed by k/2 ln(N_heldout)
+   + min_margin (a BIC-like parameter penalty) + z x its own standard error, the effect is
+   large enough to matter (`effects.effect_size` >= 1) and its estimate is not at a bound
+   of its search range. Sequential test: a candidate whose first seed does not exceed the
+   nominal model's best seed by the margin k/2 ln N + min_margin is not run with further
+   seeds and not named (to pass with all seeds, its other seeds would have to lie above the
+   first, and their spread raises its margin by z x std / sqrt(n), about as much as they
+   could add with 3 seeds and z = 3); it is reported with that one seed. The nominal
+   model's further seeds are only run when some candidate reaches this test.
 4. verdict: the clear candidate with the largest delta_loglik - penalty, or `none`; when
    the winner does not beat the second clear candidate in the same sense (by min_margin +
    z x its own standard error over the second's best seed), both are named (the data
@@ -26,8 +32,10 @@
    in this model (gravity and friction scale with the mass): when the winner is one of
    them and the other is clear too, both are always named (`EQUIVALENT`).
 
-The open-loop rollouts (`rollouts`) from the filter's posterior means are pictures for the
-report only.
+The filter runs of each round (the nominal scores; one grid step of every effect; the
+held-out seeds) are one batch: with `workers` > 1 they run in parallel processes
+(`Scorer.prefetch`); the result is the same as with one process. The open-loop rollouts
+(`rollouts`) from the filter's posterior means are pictures for the report only.
 """
 
 from __future__ import annotations
@@ -42,7 +50,7 @@ from typing import Any
 from ..errors import ModelError
 from ..extensions import EFFECTS
 from .effects import FILTER_EFFECTS, Hypothesis, effect_size, n_free_params
-from .fitting import FitResult, fit_effect
+from .fitting import FitResult, batch_scorer, drive_all, fit_effect_steps
 from .report import Analysis, CandidateFit
 from .rollouts import Prediction, Predictor, RolloutConfig, characterise, mods_of
 from .runs import Run, default_effects, split_runs
@@ -64,7 +72,9 @@ class DiscrepancyConfig:
     noise_seeds: further seeds of the held-out scores (Monte-Carlo mean and noise); z:
     margins in standard errors (module docstring); min_margin (nats): floor of the margins;
     screen (nats): training gain needed to refine an effect; refine_best: how many of the
-    best effects on the training runs are refined and tested held out; effects: candidate names
+    best effect classes on the training runs are refined and tested held out (module
+    docstring, 2); workers: processes that run the filter runs of a round in parallel
+    (1: all in this process); effects: candidate names
     (None: `runs.default_effects` that the filter can score); holdout_fraction: held-out
     tail of a single run without held-out runs;
     horizon, stride, max_starts: the rollout pictures (`rollouts.RolloutConfig`);
@@ -78,7 +88,8 @@ class DiscrepancyConfig:
     z: float = 3.0
     min_margin: float = 10.0
     screen: float = 30.0
-    refine_best: int = 3
+    refine_best: int = 2
+    workers: int = 1
     effects: tuple[str, ...] | None = None
     holdout_fraction: float = 0.4
     horizon: int = 20
@@ -96,10 +107,10 @@ class _Prepared:
     effects: tuple[str, ...]
     nominal_train: ModelScore
     nominal_held: ModelScore
-    nom_held: HeldScores
+    nom_held: HeldScores | None  # over all seeds (None: not run yet, see `compare`)
     screen: float
     seeds: tuple[int, ...]
-    refine_best: int = 3
+    refine_best: int = 2
 
 
 def _effects(cfg: DiscrepancyConfig, run: Run) -> tuple[str, ...]:
@@ -124,19 +135,19 @@ def prepare(
     train, held, desc = split_runs(runs, heldout_runs, cfg.holdout_fraction)
     effects = _effects(cfg, train[0])
     say(f"nominal model on {len(train)} training / {len(held)} held-out run(s)")
+    scorer.prefetch([(NOMINAL, train, None), (NOMINAL, held, None)])
     nom_t = scorer.score(NOMINAL, train)
     nom_h = scorer.score(NOMINAL, held)
     if not (math.isfinite(nom_t.loglik) and math.isfinite(nom_h.loglik)):
         msg = "the filter loses track of the data under the nominal model (no finite score)"
         raise ModelError(msg)
     seeds = (cfg.seed, *cfg.noise_seeds)
-    hs = held_scores(NOMINAL, held, scorer, seeds)
     say(
-        f"nominal evidence: training {nom_t.loglik:.1f}, held out {hs.lme:.1f} (std "
-        f"{hs.std:.1f} nats over {len(seeds)} filter seeds, {cfg.particles} particles)"
+        f"nominal evidence: training {nom_t.loglik:.1f}, held out {nom_h.loglik:.1f} nats "
+        f"({cfg.particles} particles, seed {cfg.seed})"
     )
     return _Prepared(
-        train, held, desc, effects, nom_t, nom_h, hs, cfg.screen, seeds, cfg.refine_best
+        train, held, desc, effects, nom_t, nom_h, None, cfg.screen, seeds, cfg.refine_best
     )
 
 
@@ -178,76 +189,132 @@ def beats(a_lme: float, a_std: float, b_best: float, *, margin: float, z: float,
     return a_lme - b_best > margin + z * a_std / math.sqrt(max(n, 1))
 
 
+def _class_of(effect: str) -> frozenset[str]:
+    for pair in EQUIVALENT:
+        if effect in pair:
+            return pair
+    return frozenset({effect})
+
+
 def fit_all(
     prep: _Prepared, scorer: Scorer, say: Callable[[str], None], started: float
 ) -> list[FitResult]:
     """Fit every candidate effect on the training runs (module docstring, 2): the coarse
-    grids of all, then the refinement of the `refine_best` best above the screen."""
+    grids of all in step, then the refinement of the `refine_best` best classes above the
+    screen."""
     nom = prep.nominal_train.loglik
-    coarse = [
-        fit_effect(e, prep.train, scorer, nom, prep.screen, refine=False) for e in prep.effects
+    score = batch_scorer(scorer, prep.train)
+    coarse = drive_all(
+        [fit_effect_steps(e, prep.train, nom, prep.screen, refine=False) for e in prep.effects],
+        score,
+    )
+    gains: dict[frozenset[str], float] = {}
+    for f in coarse:
+        if f.train_delta >= prep.screen:
+            c = _class_of(f.effect)
+            gains[c] = max(gains.get(c, -math.inf), f.train_delta)
+    chosen = sorted(gains, key=lambda c: -gains[c])[: prep.refine_best]
+    best = [
+        f.effect for f in coarse if f.train_delta >= prep.screen and _class_of(f.effect) in chosen
     ]
-    above = sorted(
-        (f for f in coarse if f.train_delta >= prep.screen), key=lambda f: -f.train_delta
-    )
-    best = {f.effect for f in above[: prep.refine_best]}
     say(
-        f"coarse grids done ({time.monotonic() - started:.0f} s); refining "
-        f"{', '.join(sorted(best)) or 'nothing'}"
+        f"coarse grids done ({time.monotonic() - started:.0f} s, {scorer.evaluations} filter "
+        f"runs); refining {', '.join(best) or 'nothing'}"
     )
-    fits = []
-    for i, c in enumerate(coarse):
-        eff = c.effect
-        f = fit_effect(eff, prep.train, scorer, nom, prep.screen) if eff in best else c
-        fits.append(f)
+    refined = drive_all([fit_effect_steps(e, prep.train, nom, prep.screen) for e in best], score)
+    by_effect = dict(zip(best, refined, strict=True))
+    fits = [by_effect.get(c.effect, c) for c in coarse]
+    for i, f in enumerate(fits):
         ps = ", ".join(f"{k}={v:.4g}" for k, v in f.params.items())
         say(
-            f"  [{i + 1}/{len(prep.effects)}, {time.monotonic() - started:.0f} s] {eff}: "
+            f"  [{i + 1}/{len(prep.effects)}, {time.monotonic() - started:.0f} s] {f.effect}: "
             f"{ps}, training gain {f.train_delta:+.1f} nats"
             f"{'' if f.refined else ' (not refined)'}"
         )
     return fits
 
 
+def _note(f: FitResult, size: float, screen: float) -> str:
+    """Why a fit cannot be named before any held-out test ('' when it can be tested)."""
+    if not f.refined:
+        return (
+            "no training gain above the screen"
+            if f.train_delta < screen
+            else "not among the best effects on the training runs"
+        )
+    if f.at_bound:
+        return "estimate at a bound of the search range (not a plausible fit)"
+    if size < 1.0:
+        return f"effect too small to matter (size {size:.2f} < 1)"
+    return ""
+
+
+def held_out_tests(
+    prep: _Prepared, tested: Sequence[FitResult], scorer: Scorer, margins: dict[str, float]
+) -> tuple[HeldScores, dict[str, HeldScores]]:
+    """Held-out scores of the nominal model and of the `tested` fits (module docstring, 3):
+    round 1 the nominal model's further seeds and each fit's first seed, round 2 the further
+    seeds of the fits whose first seed beats the nominal model's best by their margin."""
+    seeds = prep.seeds
+    if prep.nom_held is not None:
+        nom = prep.nom_held
+        scorer.prefetch((f.hypothesis, prep.held, seeds[0]) for f in tested)
+    else:
+        first = [(NOMINAL, prep.held, s) for s in seeds]
+        scorer.prefetch(first + [(f.hypothesis, prep.held, seeds[0]) for f in tested])
+        nom = held_scores(NOMINAL, prep.held, scorer, seeds)
+    going = [
+        f
+        for f in tested
+        if scorer.score(f.hypothesis, prep.held, seeds[0]).loglik - nom.best > margins[f.effect]
+    ]
+    scorer.prefetch((f.hypothesis, prep.held, s) for f in going for s in seeds[1:])
+    out = {
+        f.effect: held_scores(f.hypothesis, prep.held, scorer, seeds if f in going else seeds[:1])
+        for f in tested
+    }
+    return nom, out
+
+
 def compare(
     prep: _Prepared, fits: Sequence[FitResult], scorer: Scorer, cfg: DiscrepancyConfig
-) -> list[CandidateFit]:
-    """Held-out scores and the clear criteria (module docstring, 3)."""
+) -> tuple[list[CandidateFit], HeldScores | None]:
+    """Held-out scores and the clear criteria (module docstring, 3); also the nominal
+    model's held-out scores over the seeds (None when no fit reached the held-out test)."""
     sc = prep.train[0].scenario
     n_h = max(prep.nominal_held.n_obs, 2)
     n_s = len(prep.seeds)
+    sizes = {f.effect: effect_size(f.effect, f.params, sc) for f in fits}
+    notes = {f.effect: _note(f, sizes[f.effect], prep.screen) for f in fits}
+    tested = [f for f in fits if not notes[f.effect]]
+    nom: HeldScores | None = prep.nom_held
+    held: dict[str, HeldScores] = {}
+    if tested:
+        margins = {
+            f.effect: 0.5 * n_free_params(f.effect, sc) * math.log(n_h) + cfg.min_margin
+            for f in tested
+        }
+        nom, held = held_out_tests(prep, tested, scorer, margins)
     out = []
     for f in fits:
         k = n_free_params(f.effect, sc)
-        size = effect_size(f.effect, f.params, sc)
-        note = ""
-        if not f.refined:
-            note = (
-                "no training gain above the screen"
-                if f.train_delta < prep.screen
-                else "not among the best effects on the training runs"
-            )
-        elif f.at_bound:
-            note = "estimate at a bound of the search range (not a plausible fit)"
-        elif size < 1.0:
-            note = f"effect too small to matter (size {size:.2f} < 1)"
-        delta, std, rmse, nll, trk = (math.nan,) * 5
+        note = notes[f.effect]
         bic = 0.5 * k * math.log(n_h)
+        delta, std, rmse, nll, trk = (math.nan,) * 5
         penalty = bic + cfg.min_margin
-        hs: HeldScores | None = None
-        if f.refined:
-            hs = held_scores(f.hypothesis, prep.held, scorer, prep.seeds)
+        hs = held.get(f.effect)
+        if hs is not None and nom is not None:
             s = scorer.score(f.hypothesis, prep.held)
-            delta, std = hs.lme - prep.nom_held.lme, hs.std
+            delta, std = hs.lme - nom.lme, hs.std
             rmse, nll, trk = s.pred_rmse, -hs.lme / max(s.n_obs, 1), s.track_rmse
-            penalty = (prep.nom_held.best - prep.nom_held.lme) + bic + cfg.min_margin
-            penalty += cfg.z * std / math.sqrt(n_s)
+            penalty += (nom.best - nom.lme) + cfg.z * std / math.sqrt(n_s)
+            if len(hs.values) < n_s:
+                note = "held-out first seed below the margin (no further seeds run)"
         clear = bool(
             not note
             and hs is not None
-            and beats(
-                hs.lme, hs.std, prep.nom_held.best, margin=bic + cfg.min_margin, z=cfg.z, n=n_s
-            )
+            and nom is not None
+            and beats(hs.lme, hs.std, nom.best, margin=bic + cfg.min_margin, z=cfg.z, n=n_s)
         )
         out.append(
             CandidateFit(
@@ -262,7 +329,7 @@ def compare(
                 heldout_nll=nll,
                 tracking_rmse=trk,
                 clear=clear,
-                size=size,
+                size=sizes[f.effect],
                 evaluations=f.evaluations,
                 note=note,
                 delta_se=std / math.sqrt(n_s) if math.isfinite(std) else math.nan,
@@ -272,7 +339,7 @@ def compare(
                 heldout_seeds=() if hs is None else hs.values,
             )
         )
-    return out
+    return out, nom
 
 
 def _margin_key(c: CandidateFit) -> float:
@@ -326,13 +393,19 @@ def _pictures(
     return nom, ext, characterise(nom, float(runs[0].scenario.dt))
 
 
-def _evidence(prep: _Prepared, win: CandidateFit | None, amb: tuple[str, ...]) -> str:
+def _evidence(
+    prep: _Prepared, win: CandidateFit | None, amb: tuple[str, ...], mc_noise: float
+) -> str:
     nom = prep.nominal_held
     if win is None:
+        noise = (
+            f"Monte-Carlo noise of the evidence {mc_noise:.1f} nats"
+            if math.isfinite(mc_noise)
+            else f"no effect gained {prep.screen:.0f} nats on the training runs"
+        )
         return (
             f"no candidate beats the nominal model on the held-out data by its margin "
-            f"(nominal one-step prediction RMSE {nom.pred_rmse * 1e3:.2f} mm; Monte-Carlo "
-            f"noise of the evidence {prep.nom_held.std:.1f} nats)."
+            f"(nominal one-step prediction RMSE {nom.pred_rmse * 1e3:.2f} mm; {noise})."
         )
     pstr = ", ".join(
         f"{k}={v:.4g}+-{win.stderr.get(k, math.nan):.2g}" for k, v in win.params.items()
@@ -361,13 +434,16 @@ def analyse(
     cfg = cfg or DiscrepancyConfig()
     say = progress or (lambda s: None)
     started = time.monotonic()
-    scorer = Scorer(
-        ScoreConfig(particles=cfg.particles, seed=cfg.seed, filter_overrides=cfg.filter_overrides),
-        say,
+    scfg = ScoreConfig(
+        particles=cfg.particles,
+        seed=cfg.seed,
+        workers=cfg.workers,
+        filter_overrides=cfg.filter_overrides,
     )
-    prep = prepare(runs, heldout_runs, cfg, scorer, say)
-    fits = fit_all(prep, scorer, say, started)
-    cands = compare(prep, fits, scorer, cfg)
+    with Scorer(scfg, say) as scorer:
+        prep = prepare(runs, heldout_runs, cfg, scorer, say)
+        fits = fit_all(prep, scorer, say, started)
+        cands, nom_held = compare(prep, fits, scorer, cfg)
     win, amb = verdict(cands, cfg, len(prep.seeds))
     extended = (
         None if win is None else scorer.score(Hypothesis.make(win.effect, win.params), prep.held)
@@ -376,10 +452,14 @@ def analyse(
     name = "none" if win is None else (" or ".join(amb) if amb else win.effect)
     cands.sort(key=_margin_key, reverse=True)
     elapsed = time.monotonic() - started
-    say(f"verdict: {name} ({scorer.evaluations} filter runs, {elapsed:.0f} s)")
+    mc_noise = math.nan if nom_held is None else nom_held.std
+    say(
+        f"verdict: {name} ({scorer.evaluations} filter runs, {elapsed:.0f} s, "
+        f"{scorer.cpu_seconds:.0f} s CPU in the filter runs)"
+    )
     return Analysis(
         verdict=name,
-        evidence=_evidence(prep, win, amb),
+        evidence=_evidence(prep, win, amb, mc_noise),
         nominal=prep.nominal_held,
         nominal_train=prep.nominal_train,
         extended=extended,
@@ -399,8 +479,11 @@ def analyse(
             "min_margin_nats": cfg.min_margin,
             "screen_nats": prep.screen,
             "rollout_horizon_steps": cfg.horizon,
+            "refine_best": cfg.refine_best,
+            "workers": cfg.workers,
         },
-        mc_noise=prep.nom_held.std,
+        mc_noise=mc_noise,
         filter_runs=scorer.evaluations,
         seconds=elapsed,
+        cpu_seconds=scorer.cpu_seconds,
     )

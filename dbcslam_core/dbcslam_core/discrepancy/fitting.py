@@ -1,38 +1,69 @@
 """Fitting an effect's parameters by maximising the filter's evidence on the training runs.
 
-One parameter (`fit_1d`): the coarse grid of its `ParamSpace` (plus the nominal value),
-walked outwards from the start value on each side until two points in a row score below
-the start value (the score is taken as unimodal along one parameter at this resolution,
-up to single points where the filter lost track); when the
-best grid point beats the starting value by less than the screening margin the effect is
-not refined (it cannot be named anyway: `analysis`). Otherwise the bracket
-between the best grid point's neighbours is refined by golden-section search (in the search
-coordinate: log for factors; robust to the rough score of badly mis-specified models, where
-the filter loses track); the best evaluated point wins. When the best grid point is the
-last of the grid the bound of the range is evaluated too; an optimum at the bound is
-flagged (`FitResult.at_bound`, never named). Uncertainty: from the curvature c (nats per
-unit^2) of the parabola through the best point and its evaluated neighbours,
-stderr = 1 / sqrt(-2 c) (Laplace approximation; inf when not concave). Several parameters
-(sensor_bias): coordinate steps, one `fit_1d` per coordinate with the others at their
-current values (y, x[, yaw]).
+One parameter (`fit_1d_steps`): the coarse grid of its `ParamSpace` walked outwards from
+the start value, both sides in step (one point per side and round); a side stops after two
+points in a row that do not score above the best so far on that side (the score is taken as
+unimodal along one parameter at this resolution, up to single points where the filter lost
+track: the score of a mis-specified model is rough, e.g. with a hidden 75 ms sensor delay
+the training score was +3016 nats nominal, -2334 at 20 ms, +3271 at 50 ms, +6142 at 90 ms;
+a parameter the data do not resolve, e.g. a sensor bias along the edge, leaves the score
+unchanged). When the best grid point beats the starting value by less than the screening
+margin the effect is not refined (it cannot be named anyway: `analysis`). Otherwise, when
+the best grid point is the last one evaluated on its side, the bound of the range is
+evaluated too (an optimum at the bound is flagged, `FitResult.at_bound`, never named); then
+the peak is refined by successive parabolic interpolation in the search coordinate (log for
+factors) through the best point and its evaluated neighbours, safeguarded: the new point
+stays strictly inside the bracket, and a golden-section point of the larger side is used
+where the parabola is not concave (with the best point at the bound: the golden-section
+point towards its neighbour, once, stopping when it scores lower); it stops when the step
+is below 0.5 % of the range or after `refine_steps` points. The best evaluated point wins.
+Uncertainty: from the curvature c (nats per unit^2) of the parabola through the best point
+and its nearest evaluated neighbours, stderr = 1 / sqrt(-2 c) (Laplace approximation; inf
+when not concave). Several parameters (sensor_bias): coordinate steps, one 1-D fit per
+coordinate with the others at their current values (y, x[, yaw]).
+
+The fits are generators (`FitSteps`): they yield the batch of hypotheses they need scored
+next and receive the scores. `drive` runs one to its end; `drive_all` runs several in
+step, one batch of all their pending hypotheses per round, so that a scorer with a worker
+pool (`Scorer.prefetch`) evaluates the filter runs of a round in parallel. The result does
+not depend on how the batches are evaluated.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from .effects import Hypothesis, ParamSpace, effect_spaces
 from .runs import Run
 from .scoring import Scorer
 
-__all__ = ["FitResult", "fit_1d", "fit_effect"]
+__all__ = [
+    "FitResult",
+    "FitSteps",
+    "drive",
+    "drive_all",
+    "fit_1d",
+    "fit_1d_steps",
+    "fit_effect",
+    "fit_effect_steps",
+]
+
+T = TypeVar("T")
+FitSteps = Generator[list[Hypothesis], list[float], T]
+"""A fit as a generator: yields hypotheses to score, receives their scores, returns T."""
+
+ScoreBatch = Callable[[list[Hypothesis]], list[float]]
 
 
 @dataclass(frozen=True)
 class FitResult:
-    """Fitted parameters of one effect on the training runs."""
+    """Fitted parameters of one effect on the training runs.
+
+    evaluations: distinct hypotheses the fit scored (filter runs on the training runs,
+    whether or not a cache already held them)."""
 
     effect: str
     params: dict[str, float]
@@ -59,6 +90,38 @@ class _OneD:
     points: tuple[tuple[float, float], ...]
 
 
+def drive(steps: FitSteps[T], score: ScoreBatch) -> T:
+    """Run one fit generator to its end, scoring its batches with `score`."""
+    return drive_all([steps], score)[0]
+
+
+def drive_all(all_steps: Sequence[FitSteps[T]], score: ScoreBatch) -> list[T]:
+    """Run fit generators in step: each round scores the pending batches of all of them
+    as one batch (module docstring)."""
+    results: dict[int, T] = {}
+    pending: dict[int, list[Hypothesis]] = {}
+
+    def advance(i: int, sent: list[float] | None) -> None:
+        try:
+            pending[i] = next(all_steps[i]) if sent is None else all_steps[i].send(sent)
+        except StopIteration as stop:
+            results[i] = stop.value
+            pending.pop(i, None)
+
+    for i in range(len(all_steps)):
+        advance(i, None)
+    while pending:
+        order = sorted(pending)
+        flat = [h for i in order for h in pending[i]]
+        vals = score(flat)
+        pos = 0
+        for i in order:
+            n = len(pending[i])
+            advance(i, vals[pos : pos + n])
+            pos += n
+    return [results[i] for i in range(len(all_steps))]
+
+
 def _curvature(pts: dict[float, float], u0: float) -> float:
     """Curvature c (nats per unit^2) of the parabola through the best point u0 and its
     nearest evaluated neighbours on both sides (nan at the end of the evaluated range)."""
@@ -71,41 +134,63 @@ def _curvature(pts: dict[float, float], u0: float) -> float:
     return float(((lc - lb) / (c - b) - (lb - la) / (b - a)) / (c - a))
 
 
-def fit_1d(
+def _next_point(pts: dict[float, float], u0: float) -> float | None:
+    """The next refinement point around the best u0 (module docstring): with u0 at the end
+    of the evaluated points, the golden-section point towards its neighbour (None without
+    one)."""
+    us = sorted(pts)
+    i = us.index(u0)
+    g = (3.0 - math.sqrt(5.0)) / 2.0
+    if len(us) < 2:
+        return None
+    if i == 0 or i == len(us) - 1:
+        nb = us[1] if i == 0 else us[-2]
+        return u0 + g * (nb - u0)
+    a, b = us[i - 1], us[i + 1]
+    la, l0, lb = pts[a], pts[u0], pts[b]
+    num = (u0 - a) ** 2 * (l0 - lb) - (u0 - b) ** 2 * (l0 - la)
+    den = (u0 - a) * (l0 - lb) - (u0 - b) * (l0 - la)
+    golden = u0 + g * (b - u0) if b - u0 > u0 - a else u0 - g * (u0 - a)
+    # u0 is the best of the three: the parabola is concave unless den <= 0 (ties, -inf)
+    if not (math.isfinite(la) and math.isfinite(lb) and den > 0.0):
+        return golden
+    v = u0 - 0.5 * num / den
+    inner = 0.02 * (b - a)
+    return min(max(v, a + inner), b - inner)
+
+
+def fit_1d_steps(
     make: Callable[[float], Hypothesis],
     sp: ParamSpace,
-    score: Callable[[Hypothesis], float],
     base: tuple[float, float],
     screen: float,
     *,
-    golden_steps: int = 4,
+    refine_steps: int = 3,
     refine: bool = True,
-) -> _OneD:
-    """Maximise score(make(x)) over x in sp (module docstring). base = (x0, score at x0)."""
-    pts: dict[float, float] = {sp.to_u(base[0]): base[1]}
-    # the grid outwards from the start value on each side; a side stops after two points in
-    # a row that score below the start value (one alone may be a point where the filter
-    # lost track: the score of a mis-specified model is rough)
+) -> FitSteps[_OneD]:
+    """Maximise the score of make(x) over x in sp (module docstring); base = (x0, score at
+    x0). A generator: yields hypotheses, receives their scores."""
     u_base = sp.to_u(base[0])
-    lower = sorted((x for x in sp.grid if sp.to_u(x) < u_base), reverse=True)
-    upper = sorted(x for x in sp.grid if sp.to_u(x) > u_base)
-    for side in (lower, upper):
-        below = 0
-        for x in side:
-            val = score(make(x))
+    pts: dict[float, float] = {u_base: base[1]}
+    sides = [
+        sorted((x for x in sp.grid if sp.to_u(x) < u_base), reverse=True),
+        sorted(x for x in sp.grid if sp.to_u(x) > u_base),
+    ]
+    nxt, top, misses = [0, 0], [base[1], base[1]], [0, 0]
+    while True:  # the grid outwards, both sides in step
+        batch = [(s, sides[s][nxt[s]]) for s in (0, 1) if nxt[s] < len(sides[s])]
+        if not batch:
+            break
+        vals = yield [make(x) for _, x in batch]
+        for (s, x), val in zip(batch, vals, strict=True):
             pts[sp.to_u(x)] = val
-            below = below + 1 if val < base[1] else 0
-            if below == 2:
-                break
+            misses[s] = 0 if val > top[s] else misses[s] + 1
+            top[s] = max(top[s], val)
+            nxt[s] = nxt[s] + 1 if misses[s] < 2 else len(sides[s])
 
     def best() -> tuple[float, float]:
         u = max(pts, key=lambda k: pts[k])
         return u, pts[u]
-
-    def ev(u: float) -> float:
-        if u not in pts:
-            pts[u] = score(make(sp.from_u(u)))
-        return pts[u]
 
     u0, l0 = best()
     if l0 - base[1] < screen:
@@ -113,27 +198,24 @@ def fit_1d(
     if not refine:  # coarse stage only (`analysis.fit_all` refines the best effects)
         x0 = sp.from_u(u0)
         return _OneD(x0, math.inf, l0, sp.at_bound(x0), False, _points(sp, pts))
-    grid_u = sorted(pts)
-    if u0 == grid_u[0] and sp.lo != base[0]:  # best at the end of the grid: the bound too
-        ev(sp.to_u(sp.lo))
-    if u0 == grid_u[-1] and sp.hi != base[0]:
-        ev(sp.to_u(sp.hi))
-    u0, _ = best()
-    grid_u = sorted(pts)
-    i = grid_u.index(u0)
-    a, b = grid_u[max(i - 1, 0)], grid_u[min(i + 1, len(grid_u) - 1)]
-    # golden-section search of the bracket [a, b] around the best grid point
-    g = (math.sqrt(5.0) - 1.0) / 2.0
-    c, d = b - g * (b - a), a + g * (b - a)
-    for _ in range(golden_steps):
-        if not b - a > 1e-9:
+    us = sorted(pts)
+    ends = [(us[0], sp.lo), (us[-1], sp.hi)]
+    bound = [x for u, x in ends if u0 == u and x != base[0] and sp.to_u(x) not in pts]
+    if bound:  # best at the end of what was evaluated: the bound of the range too
+        (val,) = yield [make(bound[0])]
+        pts[sp.to_u(bound[0])] = val
+    tol = 0.005 * (sp.to_u(sp.hi) - sp.to_u(sp.lo))
+    for _ in range(refine_steps):
+        u0, l0 = best()
+        us = sorted(pts)
+        at_end = u0 in (us[0], us[-1])
+        v = _next_point(pts, u0)
+        if v is None or abs(v - u0) < tol or v in pts:
             break
-        if ev(c) >= ev(d):
-            b, d = d, c
-            c = b - g * (b - a)
-        else:
-            a, c = c, d
-            d = a + g * (b - a)
+        (val,) = yield [make(sp.from_u(v))]
+        pts[v] = val
+        if at_end and val <= l0:  # rising towards the bound: the optimum is at the bound
+            break
     u_best, l_best = best()
     x = sp.from_u(u_best)
     curv = _curvature(pts, u_best)
@@ -142,39 +224,58 @@ def fit_1d(
     return _OneD(x, se, l_best, sp.at_bound(x), True, _points(sp, pts))
 
 
+def fit_1d(
+    make: Callable[[float], Hypothesis],
+    sp: ParamSpace,
+    score: Callable[[Hypothesis], float],
+    base: tuple[float, float],
+    screen: float,
+    *,
+    refine_steps: int = 3,
+    refine: bool = True,
+) -> _OneD:
+    """`fit_1d_steps` with a scoring function of one hypothesis."""
+    steps = fit_1d_steps(make, sp, base, screen, refine_steps=refine_steps, refine=refine)
+    return drive(steps, lambda hs: [score(h) for h in hs])
+
+
 def _points(sp: ParamSpace, pts: dict[float, float]) -> tuple[tuple[float, float], ...]:
     return tuple((sp.from_u(u), pts[u]) for u in sorted(pts))
 
 
-def fit_effect(
+def fit_effect_steps(
     effect: str,
     runs: Sequence[Run],
-    scorer: Scorer,
     nominal_loglik: float,
     screen: float,
     *,
     refine: bool = True,
-) -> FitResult:
-    """Fit `effect` on `runs` (module docstring); nominal_loglik: the nominal score there."""
+) -> FitSteps[FitResult]:
+    """Fit `effect` on `runs` (module docstring) as a generator of hypotheses to score on
+    `runs`; nominal_loglik: the nominal score there."""
     sc = runs[0].scenario
     spaces = effect_spaces(sc, effect)
     cur = {s.name: s.default for s in spaces}
     ll = nominal_loglik
-    before = scorer.evaluations
     stderr: dict[str, float] = {s.name: math.inf for s in spaces}
     at_bound = False
     refined = False
     points: list[tuple[float, ...]] = []
-
-    def score(h: Hypothesis) -> float:
-        return scorer.score(h, runs).loglik
-
+    seen: set[Hypothesis] = set()
     for sp in spaces:
 
         def make(x: float, name: str = sp.name) -> Hypothesis:
             return Hypothesis.make(effect, {**cur, name: x})
 
-        res = fit_1d(make, sp, score, (cur[sp.name], ll), screen, refine=refine)
+        steps = fit_1d_steps(make, sp, (cur[sp.name], ll), screen, refine=refine)
+        try:
+            batch = next(steps)
+            while True:
+                seen.update(batch)
+                vals = yield batch
+                batch = steps.send(vals)
+        except StopIteration as stop:
+            res: _OneD = stop.value
         cur[sp.name] = res.x
         stderr[sp.name] = res.stderr
         ll = res.ll
@@ -192,6 +293,31 @@ def fit_effect(
         train_delta=ll - nominal_loglik,
         at_bound=at_bound,
         refined=refined,
-        evaluations=scorer.evaluations - before,
+        evaluations=len(seen),
         points=tuple(points),
     )
+
+
+def batch_scorer(scorer: Scorer, runs: Sequence[Run]) -> ScoreBatch:
+    """Scores of a batch of hypotheses on `runs` (their filter runs prefetched as one batch:
+    in parallel with a worker pool)."""
+
+    def score(hs: list[Hypothesis]) -> list[float]:
+        scorer.prefetch((h, runs, None) for h in hs)
+        return [scorer.score(h, runs).loglik for h in hs]
+
+    return score
+
+
+def fit_effect(
+    effect: str,
+    runs: Sequence[Run],
+    scorer: Scorer,
+    nominal_loglik: float,
+    screen: float,
+    *,
+    refine: bool = True,
+) -> FitResult:
+    """Fit `effect` on `runs` with `scorer` (module docstring)."""
+    steps = fit_effect_steps(effect, runs, nominal_loglik, screen, refine=refine)
+    return drive(steps, batch_scorer(scorer, runs))

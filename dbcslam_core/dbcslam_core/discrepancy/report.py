@@ -77,7 +77,10 @@ class Analysis:
 
     nominal / extended: held-out scores (`ModelScore`); nominal_train: the nominal score on
     the training runs; mc_noise: measured std (nats) of the held-out score across filter
-    seeds; nominal_prediction / extended_prediction: open-loop rollout pictures.
+    seeds (nan when no candidate reached the held-out test: then it is not measured);
+    filter_runs / seconds / cpu_seconds: filter runs made, wall time, their summed CPU time
+    (across the worker processes); nominal_prediction / extended_prediction: open-loop
+    rollout pictures.
     """
 
     verdict: str
@@ -96,6 +99,7 @@ class Analysis:
     mc_noise: float
     filter_runs: int
     seconds: float
+    cpu_seconds: float = math.nan  # summed CPU time of the filter runs (all processes)
 
     @property
     def gain(self) -> float:
@@ -152,6 +156,7 @@ class Analysis:
             "mc_noise_nats": _r(self.mc_noise, 3),
             "filter_runs": self.filter_runs,
             "seconds": round(self.seconds, 1),
+            "filter_cpu_seconds": _r(self.cpu_seconds, 1),
             "residuals": self.residuals,
             "settings": self.settings,
         }

@@ -7,6 +7,10 @@ Every evaluation uses the same filter seed (common random numbers across candida
 and parameters); `ScoreConfig.particles` sets the Monte-Carlo noise (measured by
 `Scorer.noise`, which re-runs a model with other seeds).
 
+Filter runs are independent and deterministic given (hypothesis, run, seed): `Scorer.prefetch`
+computes a batch of them in a pool of `ScoreConfig.workers` processes (one filter run per
+task; the results are cached, identical to a serial evaluation).
+
 Besides the evidence, each run yields the one-step prediction of the position (the
 contract's prediction RMSE): the model's deterministic step (`PlanarModel.step`, batched
 PGS) from the filter's posterior mean state at k - 1 with the posterior mean friction
@@ -18,15 +22,18 @@ see it vs the observation).
 from __future__ import annotations
 
 import math
+import multiprocessing
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from types import TracebackType
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..dynamics import PlanarModel, State
-from ..errors import DbcSlamError
+from ..errors import DbcSlamError, ModelError
 from ..extensions import ModelExtension
 from ..lcp import PGSSolver
 from ..observation import PoseObservation
@@ -35,7 +42,7 @@ from ..scenario import Scenario
 from .effects import Hypothesis
 from .runs import Run
 
-__all__ = ["SCORE_OVERRIDES", "ModelScore", "RunTrace", "ScoreConfig", "Scorer"]
+__all__ = ["SCORE_OVERRIDES", "ModelScore", "RunTrace", "ScoreConfig", "Scorer", "filter_pass"]
 
 F64 = NDArray[np.float64]
 
@@ -47,12 +54,23 @@ class ScoreConfig:
     them: it locks on to the unknown initial velocity there, and a sensor-delay hypothesis
     has no inputs from before the recording; must exceed the largest delay searched,
     0.15 s at dt 0.01); filter_overrides: extra `FilterConfig`
-    fields on top of the scenario preset (`SCORE_OVERRIDES` per scenario kind first)."""
+    fields on top of the scenario preset (`SCORE_OVERRIDES` per scenario kind first);
+    workers: processes that run batches of filter runs (`Scorer.prefetch`; 1 = in this
+    process)."""
 
     particles: int = 300
     seed: int = 0
     skip: int = 20
     filter_overrides: tuple[tuple[str, object], ...] = ()
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.particles < 1 or self.workers < 1 or self.skip < 0:
+            msg = (
+                f"ScoreConfig needs particles >= 1, workers >= 1, skip >= 0; got "
+                f"{self.particles}, {self.workers}, {self.skip}"
+            )
+            raise ModelError(msg)
 
 
 @dataclass(frozen=True)
@@ -113,8 +131,19 @@ def _delayed(a: F64, shift: float) -> F64:
     return np.asarray(a[lo] * (1.0 - fr) + a[hi] * fr, dtype=np.float64)
 
 
+Job = tuple[Hypothesis, Run, int]
+"""One filter run: hypothesis, run, seed."""
+
+
 class Scorer:
-    """Runs the filter over runs under hypotheses; caches every (hypothesis, run, seed)."""
+    """Runs the filter over runs under hypotheses; caches every (hypothesis, run, seed).
+
+    Use as a context manager when `ScoreConfig.workers` > 1 (the process pool is closed on
+    exit; `close` does the same). The pool uses the `forkserver` start method (workers do
+    not inherit the caller's threads), so a script that runs it needs the usual
+    ``if __name__ == "__main__":`` guard. `evaluations`: filter runs made; `cpu_seconds`: their
+    summed CPU time (in whichever process ran them).
+    """
 
     def __init__(
         self, cfg: ScoreConfig | None = None, progress: Callable[[str], None] | None = None
@@ -122,23 +151,70 @@ class Scorer:
         self.cfg = cfg or ScoreConfig()
         self.say = progress or (lambda s: None)
         self._cache: dict[tuple[Hypothesis, int, int], RunTrace] = {}
+        self._pool: Executor | None = None
         self.evaluations = 0
+        self.cpu_seconds = 0.0
+
+    def __enter__(self) -> Scorer:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Shut the worker pool down (if one was started)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def _key(self, hyp: Hypothesis, run: Run, seed: int | None) -> tuple[Hypothesis, int, int]:
+        return (hyp, id(run), self.cfg.seed if seed is None else seed)
+
+    def _store(self, job: Job, tr: RunTrace, cpu: float) -> None:
+        hyp, run, s = job
+        self._cache[self._key(hyp, run, s)] = tr
+        self.evaluations += 1
+        self.cpu_seconds += cpu
+        self.say(
+            f"    filter run {self.evaluations}: {hyp.label()} on {run.name} (seed {s}): "
+            f"{tr.loglik_from(self.cfg.skip):.1f} nats ({cpu:.1f} s CPU)"
+        )
 
     def trace(self, hyp: Hypothesis, run: Run, seed: int | None = None) -> RunTrace:
         """The filter pass of `hyp` over `run` (cached)."""
-        s = self.cfg.seed if seed is None else seed
-        key = (hyp, id(run), s)
+        key = self._key(hyp, run, seed)
         if key not in self._cache:
-            t0 = time.process_time()
-            tr = self._run(hyp, run, s)
-            self._cache[key] = tr
-            self.evaluations += 1
-            self.say(
-                f"    filter run {self.evaluations}: {hyp.label()} on {run.name} (seed {s}): "
-                f"{tr.loglik_from(self.cfg.skip):.1f} nats "
-                f"({time.process_time() - t0:.1f} s CPU)"
-            )
+            job = (hyp, run, key[2])
+            tr, cpu = _timed_run(self.cfg, *job)
+            self._store(job, tr, cpu)
         return self._cache[key]
+
+    def prefetch(self, jobs: Iterable[tuple[Hypothesis, Sequence[Run], int | None]]) -> None:
+        """Compute the filter runs of all (hypothesis, runs, seed) not cached yet, in the
+        worker pool when `workers` > 1 (then `score` / `trace` find them cached)."""
+        todo: dict[tuple[Hypothesis, int, int], Job] = {}
+        for hyp, runs, seed in jobs:
+            for r in runs:
+                key = self._key(hyp, r, seed)
+                if key not in self._cache:
+                    todo.setdefault(key, (hyp, r, key[2]))
+        if self.cfg.workers <= 1 or len(todo) <= 1:
+            for hyp, r, s in todo.values():
+                self.trace(hyp, r, s)
+            return
+        if self._pool is None:
+            # forkserver: workers do not inherit the parent's threads (ROS, BLAS)
+            ctx = multiprocessing.get_context("forkserver")
+            self._pool = ProcessPoolExecutor(self.cfg.workers, mp_context=ctx)
+        futs = {self._pool.submit(_timed_run, self.cfg, *job): job for job in todo.values()}
+        for fut in as_completed(futs):
+            tr, cpu = fut.result()
+            self._store(futs[fut], tr, cpu)
 
     def score(self, hyp: Hypothesis, runs: Sequence[Run], seed: int | None = None) -> ModelScore:
         """Summed evidence, prediction and tracking RMSE of `hyp` over `runs`."""
@@ -169,92 +245,103 @@ class Scorer:
     def noise(self, hyp: Hypothesis, runs: Sequence[Run], seeds: Sequence[int]) -> float:
         """Std (nats) of the score of `hyp` on `runs` across filter seeds (Monte-Carlo
         noise of the score; includes the configured seed)."""
-        vals = [self.score(hyp, runs, s).loglik for s in (self.cfg.seed, *seeds)]
+        all_seeds = (self.cfg.seed, *seeds)
+        self.prefetch((hyp, runs, s) for s in all_seeds)
+        vals = [self.score(hyp, runs, s).loglik for s in all_seeds]
         fin = [v for v in vals if math.isfinite(v)]
         return float(np.std(fin, ddof=1)) if len(fin) >= 2 else math.inf
 
-    # ------------------------------------------------------------------------- one pass
-    def _run(self, hyp: Hypothesis, run: Run, seed: int) -> RunTrace:
-        sc, exts, bias, delay = hyp.filter_setup(run.scenario)
-        nq = sc.nq
-        n = run.t.shape[0]
-        over = {**SCORE_OVERRIDES.get(sc.kind, {}), **dict(self.cfg.filter_overrides)}
-        cfg = FilterConfig.preset(sc.kind, particles=self.cfg.particles, **over)
-        filt = DbcSlamFilter(sc, cfg, np.random.default_rng(seed), exts)
-        shift = delay / float(sc.dt)
-        u = _delayed(run.u, shift)
-        env = _delayed(run.env, shift)
-        obs = np.array(run.obs, dtype=np.float64) - bias[None, :nq]
-        ll = np.full(n, np.nan)
-        q = np.full((n, nq), np.nan)
-        v = np.full((n, nq), np.nan)
-        mu_mean = np.full((n, len(sc.friction.pairs)), np.nan)
-        fin = np.nonzero(np.all(np.isfinite(obs), axis=-1))[0]
-        failed = fin.size == 0
-        if not failed:
-            k0 = int(fin[0])
-            std0 = np.full(nq, sc.noise.position)
-            if nq == 3:
-                std0[2] = sc.noise.yaw
-            filt.initialize(obs[k0], std0, joints=env[k0])
-            q[k0] = obs[k0]
-            v[k0] = 0.0
-            cands = [np.asarray(c, dtype=np.float64) for c in sc.friction.candidates]
-            mu_mean[k0] = [float(np.mean(c)) for c in cands]
-            for k in range(k0 + 1, n):
-                o = obs[k]
-                ob = PoseObservation(*(float(x) for x in o)) if np.all(np.isfinite(o)) else None
-                inp = FilterInput(
-                    wrench=tuple(float(x) for x in u[k - 1]),
-                    joints=tuple(float(x) for x in env[k]),
-                )
-                try:
-                    est = filt.step(ob, inp)
-                except DbcSlamError:
-                    failed = True
-                    break
-                ll[k] = est.log_likelihood
-                q[k] = est.pose[:nq]
-                v[k] = est.twist[:nq]
-                mu_mean[k] = [float(est.friction[p, : c.size] @ c) for p, c in enumerate(cands)]
-        pred = self._predict(sc, exts, run, u, env, q, v, mu_mean) + bias[None, :2]
-        return RunTrace(ll=ll, q=q, v=v, pred=pred, failed=failed)
 
-    @staticmethod
-    def _predict(  # noqa: PLR0917
-        sc: Scenario,
-        exts: tuple[ModelExtension, ...],
-        run: Run,
-        u: F64,
-        env: F64,
-        q: F64,
-        v: F64,
-        mu_mean: F64,
-    ) -> F64:
-        """One-step predicted position pred[k] from the posterior mean at k - 1 (nan where
-        that is missing)."""
-        n = q.shape[0]
-        out = np.full((n, 2), np.nan)
-        ok = np.all(np.isfinite(q[:-1]), -1) & np.all(np.isfinite(mu_mean[:-1]), -1)
-        idx = np.nonzero(ok)[0]
-        if idx.size == 0:
-            return out
-        model = PlanarModel(
-            sc,
-            exts,
-            PGSSolver(max_iter=200),
-            support_iterations=2,
-            support_tol=1e-7,
-        )
-        try:
-            r = model.step(
-                State(q[idx], v[idx]),
-                u[idx],
-                env[idx],
-                env[idx + 1],
-                mu_pair=mu_mean[idx],
+def _timed_run(cfg: ScoreConfig, hyp: Hypothesis, run: Run, seed: int) -> tuple[RunTrace, float]:
+    """One filter pass and its CPU time (s) in the process that ran it (pool task)."""
+    t0 = time.process_time()
+    tr = filter_pass(cfg, hyp, run, seed)
+    return tr, time.process_time() - t0
+
+
+# ----------------------------------------------------------------------------- one pass
+def filter_pass(cfg: ScoreConfig, hyp: Hypothesis, run: Run, seed: int) -> RunTrace:
+    """The scoring filter over `run` under `hyp` with filter seed `seed` (module docstring)."""
+    sc, exts, bias, delay = hyp.filter_setup(run.scenario)
+    nq = sc.nq
+    n = run.t.shape[0]
+    over = {**SCORE_OVERRIDES.get(sc.kind, {}), **dict(cfg.filter_overrides)}
+    fcfg = FilterConfig.preset(sc.kind, particles=cfg.particles, **over)
+    filt = DbcSlamFilter(sc, fcfg, np.random.default_rng(seed), exts)
+    shift = delay / float(sc.dt)
+    u = _delayed(run.u, shift)
+    env = _delayed(run.env, shift)
+    obs = np.array(run.obs, dtype=np.float64) - bias[None, :nq]
+    ll = np.full(n, np.nan)
+    q = np.full((n, nq), np.nan)
+    v = np.full((n, nq), np.nan)
+    mu_mean = np.full((n, len(sc.friction.pairs)), np.nan)
+    fin = np.nonzero(np.all(np.isfinite(obs), axis=-1))[0]
+    failed = fin.size == 0
+    if not failed:
+        k0 = int(fin[0])
+        std0 = np.full(nq, sc.noise.position)
+        if nq == 3:
+            std0[2] = sc.noise.yaw
+        filt.initialize(obs[k0], std0, joints=env[k0])
+        q[k0] = obs[k0]
+        v[k0] = 0.0
+        cands = [np.asarray(c, dtype=np.float64) for c in sc.friction.candidates]
+        mu_mean[k0] = [float(np.mean(c)) for c in cands]
+        for k in range(k0 + 1, n):
+            o = obs[k]
+            ob = PoseObservation(*(float(x) for x in o)) if np.all(np.isfinite(o)) else None
+            inp = FilterInput(
+                wrench=tuple(float(x) for x in u[k - 1]),
+                joints=tuple(float(x) for x in env[k]),
             )
-        except DbcSlamError:
-            return out
-        out[idx + 1] = r.q[:, :2]
+            try:
+                est = filt.step(ob, inp)
+            except DbcSlamError:
+                failed = True
+                break
+            ll[k] = est.log_likelihood
+            q[k] = est.pose[:nq]
+            v[k] = est.twist[:nq]
+            mu_mean[k] = [float(est.friction[p, : c.size] @ c) for p, c in enumerate(cands)]
+    pred = _predict(sc, exts, run, u, env, q, v, mu_mean) + bias[None, :2]
+    return RunTrace(ll=ll, q=q, v=v, pred=pred, failed=failed)
+
+
+def _predict(  # noqa: PLR0917
+    sc: Scenario,
+    exts: tuple[ModelExtension, ...],
+    run: Run,
+    u: F64,
+    env: F64,
+    q: F64,
+    v: F64,
+    mu_mean: F64,
+) -> F64:
+    """One-step predicted position pred[k] from the posterior mean at k - 1 (nan where
+    that is missing)."""
+    n = q.shape[0]
+    out = np.full((n, 2), np.nan)
+    ok = np.all(np.isfinite(q[:-1]), -1) & np.all(np.isfinite(mu_mean[:-1]), -1)
+    idx = np.nonzero(ok)[0]
+    if idx.size == 0:
         return out
+    model = PlanarModel(
+        sc,
+        exts,
+        PGSSolver(max_iter=200),
+        support_iterations=2,
+        support_tol=1e-7,
+    )
+    try:
+        r = model.step(
+            State(q[idx], v[idx]),
+            u[idx],
+            env[idx],
+            env[idx + 1],
+            mu_pair=mu_mean[idx],
+        )
+    except DbcSlamError:
+        return out
+    out[idx + 1] = r.q[:, :2]
+    return out

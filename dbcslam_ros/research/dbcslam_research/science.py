@@ -1,12 +1,13 @@
 """Benchmark of the discrepancy analysis: hidden effects in seeded random draws.
 
-``python -m dbcslam_research.science --out DIR [--draws 30] [--clean 30] [--particles 300]``
-(``make science``). Edge scenario as in the paper (point mass, rough mu 0.9 region between
-smooth mu 0.3 edge, 1 cm pose noise), data from `synthetic.edge_sweep_trajectory` (10 s,
-swept across the regions, two lift-offs): per draw i one effect uniformly from
-`synthetic.EDGE_HIDDEN_EFFECTS` at a realistic size (`synthetic.draw_edge_effect`) hidden in
-a training run and an independent held-out run; clean draws hide nothing. Each draw runs
-`dbcslam_core.discrepancy.analyse` (train on one run, score on the other) and counts:
+``python -m dbcslam_research.science --out DIR [--draws 30] [--clean 30] [--particles 300]
+[--workers 2] [-v]`` (``make science``). Edge scenario as in the paper (point mass, rough
+mu 0.9 region between smooth mu 0.3 edge, 1 cm pose noise), data from
+`synthetic.edge_sweep_trajectory` (10 s, swept across the regions, two lift-offs): per draw
+i one effect uniformly from `synthetic.EDGE_HIDDEN_EFFECTS` at a realistic size
+(`synthetic.draw_edge_effect`) hidden in a training run and an independent held-out run;
+clean draws hide nothing. Each draw runs `dbcslam_core.discrepancy.analyse` (train on one
+run, score on the other) and counts:
 
 * right: the verdict names the hidden effect (mass_scale / input_gain: the pair named
   together, or the hidden one alone) and its parameters are within 25 % (positions within
@@ -14,7 +15,8 @@ a training run and an independent held-out run; clean draws hide nothing. Each d
 * wrong: another effect named, or the right one with a parameter off;
 * none: nothing named (on clean draws: the right answer).
 
-Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table) after every
+Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (the table, with the wall
+time, the summed CPU time of the filter runs and their number per analysis) after every
 draw, so an interrupted run leaves its partial table; progress on stderr. Parts of the
 benchmark can run as separate processes (``--start``, ``--draws``, ``--clean``) and be
 merged: ``python -m dbcslam_research.science --out DIR --merge PART_DIR ...``.
@@ -84,22 +86,29 @@ def _table(rows: list[dict[str, Any]]) -> str:
     wrong = sum(r["outcome"] == "wrong" for r in eff)
     none_ = sum(r["outcome"] == "none" for r in eff)
     clean_none = sum(r["outcome"] == "none" for r in cln)
-    secs = [r["seconds"] for r in rows]
+
+    def med(key: str) -> float:
+        vals = [float(r[key]) for r in rows if r.get(key) is not None]
+        return float(np.median(vals)) if vals else float("nan")
+
     lines = [
         "| scenario | draws | right | wrong | none | right rate | clean runs | none on clean |"
-        " median s / analysis |",
-        "|---|---|---|---|---|---|---|---|---|",
+        " median s / analysis | median CPU s | median filter runs |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         f"| edge (varying friction, 1 cm noise) | {len(eff)} | {right} | {wrong} | {none_} | "
         f"{right / max(len(eff), 1):.0%} | {len(cln)} | {clean_none} "
-        f"({clean_none / max(len(cln), 1):.0%}) | {float(np.median(secs)) if secs else 0:.0f} |",
+        f"({clean_none / max(len(cln), 1):.0%}) | {med('seconds'):.0f} | "
+        f"{med('cpu_seconds'):.0f} | {med('filter_runs'):.0f} |",
         "",
-        "| draw | hidden | verdict | fitted | outcome | s |",
-        "|---|---|---|---|---|---|",
+        "| draw | hidden | verdict | fitted | outcome | s | CPU s | filter runs |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        cpu = r.get("cpu_seconds")
         lines.append(
             f"| {r['index']}{' (clean)' if r['clean'] else ''} | {r['hidden']} | "
-            f"{r['verdict']} | {r['fitted']} | {r['outcome']} | {r['seconds']:.0f} |"
+            f"{r['verdict']} | {r['fitted']} | {r['outcome']} | {r['seconds']:.0f} | "
+            f"{'' if cpu is None else f'{cpu:.0f}'} | {r.get('filter_runs', '')} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -108,7 +117,19 @@ def _fmt(effect: str, params: dict[str, float]) -> str:
     return effect + " " + ", ".join(f"{k}={v:.4g}" for k, v in sorted(params.items()))
 
 
-def run(out: Path, draws: int, clean: int, cfg: DiscrepancyConfig, start: int = 0) -> None:
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def run(
+    out: Path,
+    draws: int,
+    clean: int,
+    cfg: DiscrepancyConfig,
+    start: int = 0,
+    *,
+    verbose: bool = False,
+) -> None:
     """Run the benchmark, writing the table after every draw."""
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -120,7 +141,7 @@ def run(out: Path, draws: int, clean: int, cfg: DiscrepancyConfig, start: int = 
     for n, (i, is_clean) in enumerate(plan):
         train, held, ext = edge_draw(i, clean=is_clean)
         t0 = time.monotonic()
-        res = analyse([train], [held], cfg)
+        res = analyse([train], [held], cfg, progress=_say if verbose else None)
         secs = time.monotonic() - t0
         if ext is None:
             outcome = "none" if res.winner is None else "wrong"
@@ -139,6 +160,7 @@ def run(out: Path, draws: int, clean: int, cfg: DiscrepancyConfig, start: int = 
                 "outcome": outcome,
                 "seconds": secs,
                 "filter_runs": res.filter_runs,
+                "cpu_seconds": res.cpu_seconds,
                 "mc_noise": res.mc_noise,
                 "candidates": [c.to_dict() for c in res.candidates],
             }
@@ -148,7 +170,8 @@ def run(out: Path, draws: int, clean: int, cfg: DiscrepancyConfig, start: int = 
         print(
             f"[{n + 1}/{len(plan)}, {time.monotonic() - t_all:.0f} s] draw {i}"
             f"{' clean' if is_clean else ''}: hidden {rows[-1]['hidden']} -> {res.verdict} "
-            f"{rows[-1]['fitted']} ({outcome}, {secs:.0f} s, {res.filter_runs} filter runs)",
+            f"{rows[-1]['fitted']} ({outcome}, {secs:.0f} s, {res.filter_runs} filter runs, "
+            f"{res.cpu_seconds:.0f} s CPU)",
             file=sys.stderr,
             flush=True,
         )
@@ -178,16 +201,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=int, default=0, help="first draw index (0)")
     ap.add_argument("--particles", type=int, default=300, help="scoring filter particles")
     ap.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        help="processes running the filter runs of an analysis in parallel (2)",
+    )
+    ap.add_argument(
+        "-v", "--verbose", action="store_true", help="progress of each analysis (each filter run)"
+    )
+    ap.add_argument(
         "--merge", nargs="+", type=Path, default=None, help="merge the results of these dirs"
     )
     args = ap.parse_args(argv)
     if args.merge:
         merge(args.out, args.merge)
         return 0
-    if args.draws < 0 or args.clean < 0 or args.particles < 1:
-        ap.error("--draws/--clean must be >= 0 and --particles >= 1")
-    cfg = DiscrepancyConfig(particles=args.particles, pictures=False)
-    run(args.out, args.draws, args.clean, cfg, args.start)
+    if args.draws < 0 or args.clean < 0 or args.particles < 1 or args.workers < 1:
+        ap.error("--draws/--clean must be >= 0, --particles and --workers >= 1")
+    cfg = DiscrepancyConfig(particles=args.particles, pictures=False, workers=args.workers)
+    run(args.out, args.draws, args.clean, cfg, args.start, verbose=args.verbose)
     return 0
 
 

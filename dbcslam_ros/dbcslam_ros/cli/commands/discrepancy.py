@@ -12,21 +12,22 @@ __all__ = ["COMMAND"]
 _DESCRIPTION = """\
 Show what the simulation model gets wrong on measured data, name the cause, extend the
 model and measure the gain. Reads only /scenario, /object/pose, /object/wrench and
-/joint_states (never /truth/*). The score of a model is the DBC-SLAM filter's own evidence:
-its summed log predictive likelihood of the observed poses (friction per region, friction
-map, contact modes and start state are integrated by the filter). Every candidate effect
-(friction_scale, viscous_damping, mass_scale, input_gain, sensor_delay, sensor_bias,
-support_friction, support_pressure) is fitted on the training bags by maximising that
-score (coarse grid, then parabolic refinement; stderr from the curvature) and compared on
-the held-out bags against a margin of k/2 ln N plus 3 x the measured Monte-Carlo noise of
-the score; an estimate at a bound of its search range is never named; mass_scale and
-input_gain, which the data cannot tell apart, are named together. Bags given with
---heldout are never fitted on; without it every second bag is held out (one bag: its last
-40 %%). Writes the JSON (--json), a Markdown report and PNG figures (open-loop rollouts:
-pictures, not evidence) beside it, and <stem>_model.yaml: the extended model for the filter
-parameter model_file / `dbcslam replay --model`. --filter N also replays the held-out bags
-with the filter node, nominal vs extended, and adds that tracking RMSE to the JSON. Progress
-on stderr (each filter run is one line; two 10 s edge bags take 1-2 min here)."""
+/joint_states (never /truth/*). The score of a model is the DBC-SLAM filter's own
+evidence: its summed log predictive likelihood of the observed poses (friction per region,
+friction map, contact modes and start state are integrated by the filter). Every candidate
+effect (friction_scale, viscous_damping, mass_scale, input_gain, sensor_delay,
+sensor_bias, support_friction, support_pressure) is fitted on the training bags by
+maximising that score (coarse grids of all effects, then parabolic refinement of the two
+best; stderr from the curvature) and compared on the held-out bags against a margin of k/2
+ln N plus 3 x the measured Monte-Carlo noise of the score; an estimate at a bound of its
+search range is never named; mass_scale and input_gain, which the data cannot tell apart,
+are named together. Bags given with --heldout are never fitted on; without it every second
+bag is held out (one bag: its last 40 %). Writes the JSON (--json), a Markdown report and
+PNG figures (open-loop rollouts: pictures, not evidence) beside it, and <stem>_model.yaml:
+the extended model for the filter parameter model_file / `dbcslam replay --model`.
+--filter N also replays the held-out bags with the filter node, nominal vs extended, and
+adds that tracking RMSE to the JSON. Progress on stderr (each filter run is one line). The
+filter runs of each round run in --workers processes (default 2; 1 = none)."""
 
 _EXAMPLES = """\
   dbcslam discrepancy bags/edge --json out/disc/edge.json
@@ -44,6 +45,12 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "--particles", type=int, default=None, help="particles of the scoring filter (300)"
     )
     parser.add_argument("--seed", type=int, default=None, help="scoring filter seed (0)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        help="processes running the filter runs in parallel (2; 1 = in this process)",
+    )
     parser.add_argument(
         "--horizon", type=int, default=None, help="rollout steps of the pictures (20)"
     )
@@ -69,7 +76,7 @@ def _run(args: argparse.Namespace) -> int:
     from dbcslam_ros.errors import UsageError
     from dbcslam_ros.offline.discrepancy_report import config_with, run_discrepancy
 
-    for name in ("horizon", "max_starts", "stride", "particles"):
+    for name in ("horizon", "max_starts", "stride", "particles", "workers"):
         value = getattr(args, name)
         if value is not None and value < 1:
             msg = f"--{name.replace('_', '-')} must be >= 1, got {value}"
@@ -79,6 +86,7 @@ def _run(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         particles=args.particles,
         seed=args.seed,
+        workers=args.workers,
         max_starts=args.max_starts,
         stride=args.stride,
         effects=tuple(args.effects) if args.effects else None,
