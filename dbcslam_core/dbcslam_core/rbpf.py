@@ -36,6 +36,15 @@ from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
+from dbcslam_core.friction_bank import (
+    FrictionBank,
+    bank_mean,
+    combine_evidence,
+    sample_shared_proposal,
+    shared_normal,
+    shared_uniform,
+    weighted_rows,
+)
 from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
 from dbcslam_core.observation import (
     ForceObservation,
@@ -135,6 +144,16 @@ class FilterConfig:
       `normal` (the component along the contact normal: measured better on synthetic and
       pybullet pushes, the tangential part is the most model-sensitive and biased stick/slide
       towards sliding with the lowest pusher friction) or `both`.
+    * friction_bank: keep, per particle, one copy of the continuous state (q, v, mode
+      marginals) per joint friction hypothesis b, moved with friction b only and driven by the
+      same random numbers (`friction_bank`); the particle's friction belief fric[i, b] is
+      updated by the predictive likelihood of its b-copy, the particle weight by their
+      fric-weighted sum, and resampling moves whole banks. Costs B times the sub-particles of
+      the single-copy filter (B = product of the pairs' candidate counts), but the belief no
+      longer turns one-hot on the candidate that one sampled velocity favoured at an impact
+      (the friction collapse at small particle counts, README "Known weakness"). False: one
+      continuous state per particle, b sampled with it (the closed-form posterior given the
+      sampled state).
     """
 
     particles: int = 500
@@ -169,6 +188,7 @@ class FilterConfig:
     joint_maneuver_accel_std: float | None = None
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
+    friction_bank: bool = False
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -223,7 +243,9 @@ class FilterConfig:
 
         edge: friction varies along the edge -> eq. (7) mixture, prior mixed back in while in
         contact and fully out of contact. gripper / push: one time-invariant coefficient ->
-        `reuse` (the belief accumulates over the whole grasp). gripper: contact gap residuals
+        `reuse` (the belief accumulates over the whole grasp), with a friction bank per
+        particle (`friction_bank`: no collapse onto one candidate at small particle counts).
+        gripper: contact gap residuals
         within gap_tolerance close at gap_closure per step (jaw-estimate jumps vs light
         contacts; `transition.contact_gap`).
         """
@@ -245,6 +267,9 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
+                # one continuous state per friction candidate: no friction collapse at small
+                # particle counts (README "Known weakness")
+                "friction_bank": True,
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -483,10 +508,20 @@ class DbcSlamFilter:
         self._mu = np.stack(
             [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
         )  # (B, C)
-        # flat index of pred[p, b, c, m] (P, B, C, 4): p * stride + offset[b, c] + m
-        self._pred_stride = self.n_b * self.n_c * N_MODES
+        # the step's rows and their friction axis: one row per particle with the B hypotheses
+        # in closed form, or (friction bank) one row per (particle, b) with its friction only
+        self._banked = cfg.friction_bank
+        self._n_in = 1 if self._banked else self.n_b
+        n_rows = cfg.particles * (self.n_b if self._banked else 1)
+        self._mu_in = (
+            np.tile(self._mu[:, None, :], (cfg.particles, 1, 1))
+            if self._banked
+            else self._mu[None]
+        )  # (rows or 1, B_in, C) friction of each contact per row and friction column
+        # flat index of pred[p, b, c, m] (rows, B_in, C, 4): p * stride + offset[b, c] + m
+        self._pred_stride = self._n_in * self.n_c * N_MODES
         self._pred_offset = (
-            np.arange(self.n_b)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
+            np.arange(self._n_in)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
         ) * N_MODES
         # support friction (push): coefficient per friction hypothesis b, or None
         sp = self.model.surface_pair
@@ -497,6 +532,13 @@ class DbcSlamFilter:
         else:
             known = self.model.surface_mu()
             self._mu_surface = None if known is None else np.full(self.n_b, float(known))
+        self._mu_surface_in: FloatArray | None = None  # (rows or 1, B_in)
+        if self._mu_surface is not None:
+            self._mu_surface_in = (
+                np.tile(self._mu_surface, cfg.particles)[:, None]
+                if self._banked
+                else self._mu_surface[None]
+            )
         self._prior_pair = [np.asarray(p, dtype=np.float64) for p in fr.prior]
         if cfg.frozen_friction is not None:
             self._prior_b = np.ones(1)
@@ -522,17 +564,21 @@ class DbcSlamFilter:
             cfg.joint_accel_std,
             maneuver_accel_std=cfg.joint_maneuver_accel_std,
         )
-        modes0 = np.zeros((cfg.particles, self.n_b, self.n_c, N_MODES))
+        modes0 = np.zeros((n_rows, self._n_in, self.n_c, N_MODES))
         modes0[..., Mode.SEPARATED] = 1.0
+        # the rows of the step (particles, or the banks' sub-particles)
         self.particles = ParticleSet(
-            q=np.zeros((cfg.particles, self.nq)),
-            v=np.zeros((cfg.particles, self.nq)),
-            log_w=np.zeros(cfg.particles),
-            fric=np.tile(self._prior_b, (cfg.particles, 1)),
+            q=np.zeros((n_rows, self.nq)),
+            v=np.zeros((n_rows, self.nq)),
+            log_w=np.zeros(n_rows),
+            fric=self._fric_rows(n_rows),
             modes=modes0,
-            history=MapHistory(
-                cfg.map_lag, cfg.particles, self.n_pairs * self._k_max + 2 * self.n_c
-            ),
+            history=MapHistory(cfg.map_lag, n_rows, self.n_pairs * self._k_max + 2 * self.n_c),
+        )
+        self.bank: FrictionBank | None = (
+            FrictionBank(np.tile(self._prior_b, (cfg.particles, 1)), np.zeros(cfg.particles))
+            if self._banked
+            else None
         )
         # contacts of each friction pair (None: all contacts belong to the pair)
         self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
@@ -541,38 +587,63 @@ class DbcSlamFilter:
         ]
 
     # ------------------------------------------------------------- particle arrays
+    def _fric_rows(self, n_rows: int) -> FloatArray:
+        """Friction columns of fresh rows (rows, B_in): the prior, or 1 for bank copies."""
+        if self._banked:
+            return np.ones((n_rows, 1))
+        return np.tile(self._prior_b, (n_rows, 1))
+
     @property
     def q(self) -> FloatArray:
-        """Particle poses (P, nq) (m, m[, rad]), world frame."""
-        return self.particles.q
+        """Particle poses (P, nq) (m, m[, rad]), world frame. Friction bank: the mean of each
+        bank's copies under its friction belief; setting it moves every copy by the change."""
+        if self.bank is None:
+            return self.particles.q
+        return bank_mean(self.particles.q, self.bank.fric, angular=self.nq == 3)
 
     @q.setter
     def q(self, value: FloatArray) -> None:
-        self.particles.q = value
+        if self.bank is None:
+            self.particles.q = value
+            return
+        delta = np.asarray(value, dtype=np.float64) - self.q
+        q = self.particles.q + np.repeat(delta, self.n_b, axis=0)
+        if self.nq == 3:
+            q[:, 2] = wrap_angle(q[:, 2])
+        self.particles.q = q
 
     @property
     def v(self) -> FloatArray:
-        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame."""
-        return self.particles.v
+        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame (friction bank: as q)."""
+        if self.bank is None:
+            return self.particles.v
+        return weighted_rows(self.particles.v, self.bank.fric)
 
     @v.setter
     def v(self, value: FloatArray) -> None:
-        self.particles.v = value
+        if self.bank is None:
+            self.particles.v = value
+            return
+        delta = np.asarray(value, dtype=np.float64) - self.v
+        self.particles.v = self.particles.v + np.repeat(delta, self.n_b, axis=0)
 
     @property
     def log_w(self) -> FloatArray:
         """Unnormalised log weights (P,)."""
-        return self.particles.log_w
+        return self.particles.log_w if self.bank is None else self.bank.log_w
 
     @property
     def fric(self) -> FloatArray:
         """Friction belief over the joint friction hypotheses (P, B)."""
-        return self.particles.fric
+        return self.particles.fric if self.bank is None else self.bank.fric
 
     @property
     def modes(self) -> FloatArray:
         """Per-contact mode marginals given the friction hypothesis (P, B, C, 4)."""
-        return self.particles.modes
+        m = self.particles.modes
+        if self.bank is None:
+            return m
+        return m.reshape(self.config.particles, self.n_b, self.n_c, N_MODES)
 
     # ------------------------------------------------------------------ initialisation
     def initialize(
@@ -608,10 +679,16 @@ class DbcSlamFilter:
         an = np.einsum("pcv,pv->pc", kin.Jn, v) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
+        rows = p
+        if self.bank is not None:  # every copy of a bank starts from the particle's draw
+            rows = p * self.n_b
+            q, v, soft = (np.repeat(a, self.n_b, axis=0) for a in (q, v, soft))
+            self.bank.fric = np.tile(self._prior_b, (p, 1))
+            self.bank.log_w = np.zeros(p)
         ps = self.particles
-        ps.q, ps.v, ps.log_w = q, v, np.zeros(p)
-        ps.fric = np.tile(self._prior_b, (p, 1))
-        ps.modes = np.broadcast_to(soft[:, None], (p, self.n_b, self.n_c, N_MODES)).copy()
+        ps.q, ps.v, ps.log_w = q, v, np.zeros(rows)
+        ps.fric = self._fric_rows(rows)
+        ps.modes = np.broadcast_to(soft[:, None], (rows, self._n_in, self.n_c, N_MODES)).copy()
         ps.history.clear()
         self._initialised = True
 
@@ -661,6 +738,8 @@ class DbcSlamFilter:
         dyn = self._hypothesis_dynamics(ent, free, inp)
         prop = self._propose(ent, dyn, inp)
         post = self._discrete_posterior(ent, dyn, prop)
+        if self.bank is not None:
+            return self._bank_update(self.bank, ent, prop, post, inp)
         self._update_beliefs(post)
         log_ml = self._reweight(prop.incr, inp)
         w = self._move(prop, post, inp.joints)
@@ -736,13 +815,13 @@ class DbcSlamFilter:
         kin = contact_kinematics(self.scenario, ps.q, inp.env0, inp.env_vel)
         m_eff: FloatArray | None = None
         v_free_b: FloatArray | None = None
-        if self._mu_surface is None:
+        if self._mu_surface_in is None:
             f = self.model.generalized_force(ps.q, ps.v, inp.u)
             v_free = ps.v + dt * f * self._inv_mass
         else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
             k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
             m_eff = (
-                self.model.mass_matrix + dt * self._mu_surface[None, :, None, None] * k1[:, None]
+                self.model.mass_matrix + dt * self._mu_surface_in[:, :, None, None] * k1[:, None]
             )
             v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
@@ -791,8 +870,8 @@ class DbcSlamFilter:
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
         pred_full = pred
-        if pred.shape != (n_p, self.n_b, self.n_c, N_MODES):
-            pred_full = np.broadcast_to(pred, (n_p, self.n_b, self.n_c, N_MODES))
+        if pred.shape != (n_p, self._n_in, self.n_c, N_MODES):
+            pred_full = np.broadcast_to(pred, (n_p, self._n_in, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
             lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
         return _Entries(hyp, n_k, pi, ki, slot, modes_n, pbcm, lp)
@@ -815,7 +894,7 @@ class DbcSlamFilter:
             None if free.m_eff is None else free.m_eff.take(ent.pi, axis=0),
             sensitivity=inp.force is not None,
         )
-        l_cond = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        l_cond = np.full((n_p, ent.n_k, self._n_in), -np.inf)
         l_cond[ent.pi, ent.ki] = ent.lp - 0.5 * sol.score
         l_cond = l_cond - self._lse(l_cond, 1)[:, None, :]
         with np.errstate(divide="ignore"):
@@ -850,23 +929,32 @@ class DbcSlamFilter:
             inp.lin,
             sigma_q=self._sigma_q,
         )
-        log_joint = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        log_joint = np.full((n_p, ent.n_k, self._n_in), -np.inf)
         log_joint[ent.pi, ent.ki] = dyn.log_alpha + prop.log_pred
         flat = log_joint.reshape(n_p, -1)
         incr = self._lse(flat, 1)  # (P,)
-        gumbel = -np.log(-np.log(self.rng.random(flat.shape)))
+        bank = self.bank
+        if bank is None:
+            uni = self.rng.random(flat.shape)
+        else:  # the copies of a bank share their random numbers
+            uni = shared_uniform(self.rng, bank.size, bank.n_b, flat.shape[1:])
+        gumbel = -np.log(-np.log(uni))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
-        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_b))
+        k_star, b_star = np.unravel_index(pick, (ent.n_k, self._n_in))
         n_star = ent.slot[np.arange(n_p), k_star]
-        v_new, e_q = sample_gaussian_proposal(
-            prop,
-            v_h=dyn.v_h[n_star, b_star],
-            innovation=prop.innovation[n_star, b_star],
-            v_mean=prop.v_mean[n_star, b_star],
-            v_cov=prop.v_cov[n_star, b_star],
-            dt=dt,
-            rng=self.rng,
-        )
+        chosen = {
+            "v_h": dyn.v_h[n_star, b_star],
+            "innovation": prop.innovation[n_star, b_star],
+            "v_mean": prop.v_mean[n_star, b_star],
+            "v_cov": prop.v_cov[n_star, b_star],
+        }
+        if bank is None:
+            v_new, e_q = sample_gaussian_proposal(prop, **chosen, dt=dt, rng=self.rng)
+        else:
+            tail = (self.nq,)
+            z_v = shared_normal(self.rng, bank.size, bank.n_b, tail)
+            z_q = shared_normal(self.rng, bank.size, bank.n_b, tail)
+            v_new, e_q = sample_shared_proposal(prop, **chosen, dt=dt, z_v=z_v, z_q=z_q)
         q_new = self.particles.q + dt * v_new + e_q
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
@@ -877,7 +965,7 @@ class DbcSlamFilter:
         joint over (hypothesis, friction), then the friction belief (P, B), the per-contact
         mode marginals given b (P, B, C, 4) and overall (P, C, 4), and P(pair in contact)."""
         n_p = self.particles.size
-        log_post = np.full((n_p, ent.n_k, self.n_b), -np.inf)
+        log_post = np.full((n_p, ent.n_k, self._n_in), -np.inf)
         v_rel = prop.v_new.take(ent.pi, axis=0)[:, None, :] - dyn.v_h
         dens = gaussian_log_density(v_rel, dyn.cov_h)
         log_post[ent.pi, ent.ki] = np.where(
@@ -893,7 +981,7 @@ class DbcSlamFilter:
             ent.pbcm.reshape(-1),
             weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
-        ).reshape(n_p, self.n_b, self.n_c, N_MODES)
+        ).reshape(n_p, self._n_in, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
         tiny = 1e-12
         modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
@@ -911,7 +999,8 @@ class DbcSlamFilter:
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
-        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
+        # (P, pairs, Kmax); friction bank: per bank, after combining the copies
+        fric_pair = self._pair_marginals(fric_post) if self.bank is None else np.empty(0)
         return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
 
     def _update_beliefs(self, post: _Posterior) -> None:
@@ -927,10 +1016,13 @@ class DbcSlamFilter:
             ps.fric = self._predict_friction(post.fric_post, post.fric_pair, post.pair_in)
         ps.modes = post.modes_post
 
-    def _reweight(self, incr: FloatArray, inp: _StepInputs) -> float:
-        """Multiply the weights by each particle's evidence; returns the step's log marginal
-        likelihood log p(o_l | o_{0:l-1}) (0 without observation)."""
-        ps = self.particles
+    def _reweight(
+        self, incr: FloatArray, inp: _StepInputs, ps: ParticleSet | FrictionBank | None = None
+    ) -> float:
+        """Multiply the weights of ps (default: the particles) by each particle's evidence;
+        returns the step's log marginal likelihood log p(o_l | o_{0:l-1}) (0 without
+        observation)."""
+        ps = self.particles if ps is None else ps
         w_prev, _ = normalise_log_weights(ps.log_w)
         with np.errstate(divide="ignore"):
             log_ml = (
@@ -953,16 +1045,74 @@ class DbcSlamFilter:
         ps = self.particles
         ps.q, ps.v = prop.q_new, prop.v_new
         w, _ = normalise_log_weights(ps.log_w)
+        self._push_history(post.fric_pair, post.p_contact, joints, w)
+        return w
+
+    def _push_history(
+        self, fric_pair: FloatArray, p_contact: FloatArray, joints: FloatArray, w: FloatArray
+    ) -> None:
+        """Append one step of the rows (fric_pair (rows, pairs, Kmax), P(in contact) (rows,
+        C), contact coordinates at the rows' poses) to the map history; the entry leaving
+        the lag window is committed under the row weights w (rows,)."""
+        ps = self.particles
         s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
         pk = self.n_pairs * self._k_max
         row = np.empty((ps.size, ps.history.buf.shape[2]))
-        row[:, :pk] = post.fric_pair.reshape(ps.size, pk)
+        row[:, :pk] = fric_pair.reshape(ps.size, pk)
         row[:, pk : pk + self.n_c] = s_new
-        row[:, pk + self.n_c :] = post.p_contact
+        row[:, pk + self.n_c :] = p_contact
         old = ps.history.push(row)
         if old is not None:
             self._commit(self.map, old[None], w)
-        return w
+
+    def _bank_update(
+        self,
+        bank: FrictionBank,
+        ent: _Entries,
+        prop: _Proposal,
+        post: _Posterior,
+        inp: _StepInputs,
+    ) -> Estimate:
+        """The rest of the step with a friction bank (`friction_bank`): the copies' evidence
+        updates each bank's friction belief and weight, eq. (7) at bank level, the copies
+        move, the map history gets every copy under its share of the bank's belief, whole
+        banks resample, and the estimate averages the copies."""
+        n_b = bank.n_b
+        incr, fric_post = combine_evidence(bank.fric, prop.incr)  # (P,), (P, B)
+        pair_in = weighted_rows(post.pair_in, fric_post)  # (P, pairs)
+        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
+        if self._step <= self.config.friction_hold_steps:
+            bank.fric = np.tile(self._prior_b, (bank.size, 1))  # see _update_beliefs
+            fric_pair = self._pair_marginals(bank.fric)
+        else:
+            bank.fric = self._predict_friction(fric_post, fric_pair, pair_in)
+        ps = self.particles
+        ps.modes = post.modes_post  # (P B, 1, C, 4): given the copy's own friction
+        log_ml = self._reweight(incr, inp, bank)
+        ps.q, ps.v = prop.q_new, prop.v_new
+        w, _ = normalise_log_weights(bank.log_w)
+        share = fric_post.reshape(-1)  # (P B,) each copy's share of its bank
+        fric_pair_rows = np.repeat(fric_pair, n_b, axis=0)
+        self._push_history(
+            fric_pair_rows, post.p_contact * share[:, None], inp.joints, np.repeat(w, n_b)
+        )
+        ess = effective_sample_size(w)
+        resampled = ess < self.config.ess_threshold * bank.size
+        if resampled:
+            bank.resample(self._resampler(w, self.rng), ps)
+        map_w = normalise_log_weights(bank.log_w)[0] if resampled else w
+        return self._estimate(
+            w=(w[:, None] * fric_post).reshape(-1),
+            map_w=np.repeat(map_w, n_b),
+            q=prop.q_new,
+            v=prop.v_new,
+            marg_post=post.marg_post,
+            fric_pair=fric_pair_rows,
+            ess=ess,
+            live=float(ent.hyp.n_live.mean()),
+            log_ml=log_ml,
+            resampled=resampled,
+        )
 
     def _maybe_resample(self, w: FloatArray) -> tuple[float, bool]:
         """Resample when the effective sample size falls below the threshold; returns
@@ -1011,7 +1161,8 @@ class DbcSlamFilter:
         cfg = self.config
         prev_in = None
         if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per particle
-            prev_in = 1.0 - np.einsum("pb,pbc->pc", self.fric, self.modes[..., Mode.SEPARATED])
+            ps = self.particles
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
             prev_in = prev_in.take(pi, axis=0)
         phi = contact_gap(
             kin.phi.take(pi, axis=0),
@@ -1029,7 +1180,7 @@ class DbcSlamFilter:
             phi=phi[:, None],
             vn_env=kin.vn_env.take(pi, axis=0)[:, None],
             vt_env=kin.vt_env.take(pi, axis=0)[:, None],
-            mu=self._mu[None],
+            mu=self._mu_in if self.bank is None else self._mu_in.take(pi, axis=0),
             dt=self.dt,
             scales=self._scales,
             groups=self._layout.obstacle,
@@ -1156,6 +1307,9 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
+        if self.bank is not None:
+            wb, _ = normalise_log_weights(self.bank.log_w)
+            return self._friction_map_view(np.repeat(wb, self.bank.n_b))
         w, _ = normalise_log_weights(self.particles.log_w)
         return self._friction_map_view(w)
 
