@@ -79,7 +79,10 @@ from dbcslam_core.transition import (
     soft_modes,
 )
 
-__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
+__all__ = ["FRICTION_COPIES", "DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
+
+FRICTION_COPIES = ("none", "bank", "filters")
+"""Values of `FilterConfig.friction_copies`."""
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -188,7 +191,7 @@ class FilterConfig:
     joint_maneuver_accel_std: float | None = None
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
-    friction_bank: bool = False
+    friction_copies: str = "none"
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -233,6 +236,12 @@ class FilterConfig:
         ):
             msg = f"gap_tolerance must be None or a finite gap >= 0 m, got {self.gap_tolerance}"
             raise ModelError(msg)
+        if self.friction_copies not in FRICTION_COPIES:
+            msg = (
+                f"friction_copies must be one of {list(FRICTION_COPIES)}, got "
+                f"{self.friction_copies!r}"
+            )
+            raise ModelError(msg)
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
             raise ModelError(msg)
@@ -269,7 +278,7 @@ class FilterConfig:
                 "map_cell": 0.005,
                 # one continuous state per friction candidate: no friction collapse at small
                 # particle counts (README "Known weakness")
-                "friction_bank": True,
+                "friction_copies": "bank",
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -510,7 +519,8 @@ class DbcSlamFilter:
         )  # (B, C)
         # the step's rows and their friction axis: one row per particle with the B hypotheses
         # in closed form, or (friction bank) one row per (particle, b) with its friction only
-        self._banked = cfg.friction_bank
+        self._copies = cfg.friction_copies
+        self._banked = self._copies != "none"
         self._n_in = 1 if self._banked else self.n_b
         n_rows = cfg.particles * (self.n_b if self._banked else 1)
         self._mu_in = (
@@ -597,13 +607,13 @@ class DbcSlamFilter:
     def q(self) -> FloatArray:
         """Particle poses (P, nq) (m, m[, rad]), world frame. Friction bank: the mean of each
         bank's copies under its friction belief; setting it moves every copy by the change."""
-        if self.bank is None:
+        if self.bank is None or self._copies == "filters":
             return self.particles.q
         return bank_mean(self.particles.q, self.bank.fric, angular=self.nq == 3)
 
     @q.setter
     def q(self, value: FloatArray) -> None:
-        if self.bank is None:
+        if self.bank is None or self._copies == "filters":
             self.particles.q = value
             return
         delta = np.asarray(value, dtype=np.float64) - self.q
@@ -615,13 +625,13 @@ class DbcSlamFilter:
     @property
     def v(self) -> FloatArray:
         """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame (friction bank: as q)."""
-        if self.bank is None:
+        if self.bank is None or self._copies == "filters":
             return self.particles.v
         return weighted_rows(self.particles.v, self.bank.fric)
 
     @v.setter
     def v(self, value: FloatArray) -> None:
-        if self.bank is None:
+        if self.bank is None or self._copies == "filters":
             self.particles.v = value
             return
         delta = np.asarray(value, dtype=np.float64) - self.v
@@ -630,18 +640,28 @@ class DbcSlamFilter:
     @property
     def log_w(self) -> FloatArray:
         """Unnormalised log weights (P,)."""
-        return self.particles.log_w if self.bank is None else self.bank.log_w
+        if self.bank is None:
+            return self.particles.log_w
+        if self._copies == "filters":  # column weights x the belief in the column's friction
+            with np.errstate(divide="ignore"):
+                lb = np.log(np.tile(self.bank.fric[0], self.bank.size))
+            return np.asarray(self.particles.log_w + lb, dtype=np.float64)
+        return self.bank.log_w
 
     @property
     def fric(self) -> FloatArray:
         """Friction belief over the joint friction hypotheses (P, B)."""
-        return self.particles.fric if self.bank is None else self.bank.fric
+        if self.bank is None:
+            return self.particles.fric
+        if self._copies == "filters":  # the global belief, per row
+            return np.tile(self.bank.fric[0], (self.particles.size, 1))
+        return self.bank.fric
 
     @property
     def modes(self) -> FloatArray:
         """Per-contact mode marginals given the friction hypothesis (P, B, C, 4)."""
         m = self.particles.modes
-        if self.bank is None:
+        if self.bank is None or self._copies == "filters":
             return m
         return m.reshape(self.config.particles, self.n_b, self.n_c, N_MODES)
 
@@ -739,6 +759,8 @@ class DbcSlamFilter:
         prop = self._propose(ent, dyn, inp)
         post = self._discrete_posterior(ent, dyn, prop)
         if self.bank is not None:
+            if self._copies == "filters":
+                return self._filters_update(self.bank, ent, prop, post, inp)
             return self._bank_update(self.bank, ent, prop, post, inp)
         self._update_beliefs(post)
         log_ml = self._reweight(prop.incr, inp)
@@ -1123,6 +1145,105 @@ class DbcSlamFilter:
         self.particles.resample(self._resampler(w, self.rng))
         return ess, True
 
+    def _column_weights(self) -> tuple[FloatArray, FloatArray]:
+        """friction_copies='filters': normalised weights within each column (P, B) and
+        their log."""
+        ps = self.particles
+        n_b = self.n_b
+        logw = ps.log_w.reshape(-1, n_b)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lw = logw - self._lse(logw.T, 1)[None, :]
+        # a column whose particles all have zero likelihood (its friction has belief 0)
+        # restarts from equal weights
+        lw = np.where(np.isnan(lw), -math.log(lw.shape[0]), lw)
+        return np.exp(lw), lw
+
+    def _filters_update(
+        self,
+        bank: FrictionBank,
+        ent: _Entries,
+        prop: _Proposal,
+        post: _Posterior,
+        inp: _StepInputs,
+    ) -> Estimate:
+        """The rest of the step with one fixed-friction filter per hypothesis
+        (friction_copies='filters'): column b of the rows is a particle filter with friction
+        b; its step evidence log sum_i W[i, b] L[i, b] updates the global friction belief
+        (Bayesian model averaging, exact for a time-invariant friction); eq. (7) on the
+        global belief; each column resamples on its own weights (common random numbers)."""
+        ps = self.particles
+        n_b = bank.n_b
+        wn, lw = self._column_weights()
+        lik = prop.incr.reshape(-1, n_b)  # (P, B)
+        with np.errstate(invalid="ignore"):
+            ev = self._lse((lw + lik).T, 1)  # (B,) log p(o_l | o_0:l-1, b)
+        belief = bank.fric[0]
+        with np.errstate(divide="ignore"):
+            log_joint = np.log(belief) + np.where(np.isfinite(ev), ev, -np.inf)
+        total = float(_logsumexp(log_joint, axis=0))
+        if not math.isfinite(total):
+            msg = (
+                f"all {ps.size} particles have zero likelihood at step {self._step}: the "
+                f"observation {inp.observation} is incompatible with the model"
+            )
+            raise ModelError(msg)
+        log_ml = total if inp.lin is not None or inp.force is not None else 0.0
+        belief_post = np.exp(log_joint - total)  # (B,)
+        ps.log_w = ps.log_w + prop.incr
+        wn, lw = self._column_weights()
+        ps.log_w = lw.reshape(-1)
+        row_w = (wn * belief_post[None, :]).reshape(-1)  # (P B,) weights of the rows
+        pair_in = (row_w @ post.pair_in)[None]  # (1, pairs)
+        fric_pair = self._pair_marginals(belief_post[None])  # (1, pairs, Kmax)
+        if self._step <= self.config.friction_hold_steps:
+            nxt = self._prior_b
+            fric_pair = self._pair_marginals(nxt[None])
+        else:
+            nxt = self._predict_friction(belief_post[None], fric_pair, pair_in)[0]
+        bank.fric = np.tile(nxt, (bank.size, 1))
+        ps.modes = post.modes_post
+        ps.q, ps.v = prop.q_new, prop.v_new
+        share = np.tile(belief_post, bank.size)  # (P B,) the belief in each row's column
+        fric_pair_rows = np.repeat(fric_pair, ps.size, axis=0)
+        self._push_history(
+            fric_pair_rows, post.p_contact * share[:, None], inp.joints, wn.reshape(-1)
+        )
+        ess = effective_sample_size(row_w)
+        resampled = self._resample_columns(wn)
+        map_w = self._column_weights()[0].reshape(-1)
+        return self._estimate(
+            w=row_w,
+            map_w=map_w,
+            q=prop.q_new,
+            v=prop.v_new,
+            marg_post=post.marg_post,
+            fric_pair=fric_pair_rows,
+            ess=ess,
+            live=float(ent.hyp.n_live.mean()),
+            log_ml=log_ml,
+            resampled=resampled,
+        )
+
+    def _resample_columns(self, wn: FloatArray) -> bool:
+        """Resample each column (fixed-friction filter) of wn (P, B) whose effective sample
+        size is below the threshold, all with the same random numbers; returns whether any
+        was."""
+        n_p, n_b = wn.shape
+        ess = 1.0 / np.sum(wn * wn, axis=0)  # (B,)
+        low = np.flatnonzero(ess < self.config.ess_threshold * n_p)
+        if low.size == 0:
+            return False
+        seed = int(self.rng.integers(2**62)) if n_b > 1 else None
+        rows = np.arange(n_p * n_b).reshape(n_p, n_b)
+        for b in low.tolist():  # a loop over friction hypotheses (B), not particles
+            rng = self.rng if seed is None else np.random.default_rng(seed)
+            rows[:, b] = self._resampler(wn[:, b], rng) * n_b + b
+        keep = self.particles.log_w.reshape(n_p, n_b).copy()
+        keep[:, low] = 0.0
+        self.particles.resample(rows.reshape(-1))
+        self.particles.log_w = keep.reshape(-1)
+        return True
+
     # ------------------------------------------------------------------------ helpers
     @staticmethod
     def _lse(a: FloatArray, axis: int) -> FloatArray:
@@ -1307,6 +1428,8 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
+        if self.bank is not None and self._copies == "filters":
+            return self._friction_map_view(self._column_weights()[0].reshape(-1))
         if self.bank is not None:
             wb, _ = normalise_log_weights(self.bank.log_w)
             return self._friction_map_view(np.repeat(wb, self.bank.n_b))
