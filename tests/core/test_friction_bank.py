@@ -68,34 +68,61 @@ def _assert_same(a: list[Estimate], b: list[Estimate]) -> None:
 
 
 @pytest.mark.parametrize("kind", ["gripper", "edge"])
-def test_bank_with_one_hypothesis_is_the_single_copy_filter(kind: str) -> None:
-    """B = 1 (frozen friction): the bank consumes the same random numbers and does the same
-    arithmetic as the single-copy filter, so the outputs are identical."""
+@pytest.mark.parametrize("copies", ["bank", "filters"])
+def test_copies_with_one_hypothesis_are_the_single_copy_filter(kind: str, copies: str) -> None:
+    """B = 1 (frozen friction): the copies consume the same random numbers and do the same
+    arithmetic as the single-copy filter, so the outputs are equal (bank: identical; filters:
+    to round-off, its weights are renormalised every step)."""
     traj = gripper_trajectory(1, duration=1.0) if kind == "gripper" else edge_trajectory(0)
     cfg = FilterConfig.preset(kind, particles=30, frozen_friction=1, friction_copies="none")
     single, fs = _run(traj, cfg)
-    banked, fb = _run(traj, replace(cfg, friction_copies="bank"))
-    assert fb.bank is not None and fs.bank is None
-    _assert_same(single, banked)
-    np.testing.assert_array_equal(fs.q, fb.q)
-    np.testing.assert_array_equal(fs.modes, fb.modes)
+    copied, fc = _run(traj, replace(cfg, friction_copies=copies))
+    assert fc.bank is not None and fs.bank is None
+    if copies == "bank":
+        _assert_same(single, copied)
+        np.testing.assert_array_equal(fs.q, fc.q)
+        np.testing.assert_array_equal(fs.modes, fc.modes)
+        return
+    for x, y in zip(single, copied, strict=True):
+        np.testing.assert_allclose(x.pose, y.pose, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(x.modes, y.modes, rtol=0, atol=1e-9)
+        assert x.log_likelihood == pytest.approx(y.log_likelihood, abs=1e-9)
+        assert x.resampled == y.resampled
 
 
-def test_bank_does_not_collapse_onto_a_wrong_friction(gripper_traj: Trajectory) -> None:
+@pytest.mark.parametrize("copies", ["bank", "filters"])
+def test_copies_do_not_collapse_onto_a_wrong_friction(
+    gripper_traj: Trajectory, copies: str
+) -> None:
     """At 40 particles the single-copy filter ends confidently on a wrong jaw friction in
     some seeds (each particle's belief turns one-hot at an impact, resampling on pose spreads
-    one label); the bank identifies mu = 0.4 in every seed, tracking at least as well."""
+    one label); with a state copy per friction hypothesis mu = 0.4 is identified in every
+    seed, tracking at least as well."""
     true_k = 1
     wrong_single = 0
     for seed in range(3):
         cfg = FilterConfig.preset("gripper", particles=40, friction_copies="none")
         single, _ = _run(gripper_traj, cfg, seed)
-        banked, _ = _run(gripper_traj, replace(cfg, friction_copies="bank"), seed)
+        copied, _ = _run(gripper_traj, replace(cfg, friction_copies=copies), seed)
         if single[-1].friction[0, true_k] < 0.01:
             wrong_single += 1
-        assert banked[-1].friction[0, true_k] > 0.9, (seed, banked[-1].friction)
-        assert _pos_rmse(banked, gripper_traj) < 0.5 * gripper_traj.scenario.noise.position
-    assert wrong_single >= 1  # the collapse the bank fixes (seeds 0 and 1 today)
+        assert copied[-1].friction[0, true_k] > 0.9, (seed, copied[-1].friction)
+        assert _pos_rmse(copied, gripper_traj) < 0.5 * gripper_traj.scenario.noise.position
+    assert wrong_single >= 1  # the collapse the copies fix (seeds 0 and 1 today)
+
+
+def test_filters_rows_are_the_public_particles() -> None:
+    traj = gripper_trajectory(1, duration=0.5)
+    cfg = FilterConfig.preset("gripper", particles=20, friction_copies="filters")
+    est, f = _run(traj, replace(cfg, friction_hold_steps=0))
+    rows = 20 * f.n_b
+    assert f.q.shape == (rows, 3) and f.v.shape == (rows, 3) and f.log_w.shape == (rows,)
+    assert f.fric.shape == (rows, f.n_b)
+    np.testing.assert_allclose(f.fric, np.tile(est[-1].friction[0], (rows, 1)), atol=1e-9)
+    # the row weights are the column weights x the belief in the column's friction
+    w = np.exp(f.log_w)
+    np.testing.assert_allclose(w.reshape(20, f.n_b).sum(axis=0), f.fric[0], atol=1e-9)
+    assert any(e.resampled for e in est)
 
 
 def test_bank_public_arrays_and_resampling_keep_copies_together() -> None:
@@ -103,7 +130,9 @@ def test_bank_public_arrays_and_resampling_keep_copies_together() -> None:
     n_p = 20
     f = DbcSlamFilter(
         traj.scenario,
-        FilterConfig.preset("gripper", particles=n_p, friction_hold_steps=0),
+        FilterConfig.preset(
+            "gripper", particles=n_p, friction_hold_steps=0, friction_copies="bank"
+        ),
         np.random.default_rng(3),
     )
     assert f.bank is not None
@@ -130,7 +159,7 @@ def test_bank_rows_and_weighted_rows() -> None:
     np.testing.assert_array_equal(bank_rows(np.array([2, 0]), 3), [6, 7, 8, 0, 1, 2])
     x = np.arange(12.0).reshape(6, 2)  # 2 banks x 3 copies
     w = np.array([[1.0, 0.0, 0.0], [0.25, 0.25, 0.5]])
-    np.testing.assert_allclose(weighted_rows(x, w), [[0.0, 1.0], [6.0 + 1.0, 7.0 + 1.0]])
+    np.testing.assert_allclose(weighted_rows(x, w), [[0.0, 1.0], [8.5, 9.5]])
 
 
 def test_bank_mean_wraps_angles() -> None:
