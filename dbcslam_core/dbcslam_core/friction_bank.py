@@ -1,6 +1,7 @@
 """Friction bank: per particle, one copy of the continuous state per friction hypothesis.
 
-`FilterConfig.friction_bank`. Particle i (a *bank*) carries B sub-particles (i, b), one per
+`FilterConfig.friction_copies` = `bank` (and the row helpers of `filters`). Particle i (a
+*bank*) carries B sub-particles (i, b), one per
 joint friction hypothesis b, each with its own pose q, twist v and per-contact mode marginals,
 moved by the reduced dynamics with friction b only (a fixed-friction filter per b) and driven
 by the same random numbers (`shared_uniform`, `shared_normal`: the copies differ only through
@@ -14,6 +15,9 @@ and resampling moves whole banks. Unlike the single-copy filter, no friction hyp
 ever sampled into a particle's trajectory, so the belief cannot turn one-hot on the candidate
 that one noisy velocity sample happened to favour at an impact: the evidence of each b
 accumulates over its copy's own trajectory (the fixed-friction filters' marginal likelihoods).
+Its weakness (measured, README "Known weakness"): a copy is never selected on its own fit,
+so once a bank's belief leads with one b its other copies are carried along by that lead
+and drift off the observations, which reinforces the lead.
 
 Rows: sub-particle (i, b) is row i * B + b of the (P * B, ...) arrays. Pure numpy, vectorised
 over (banks, friction hypotheses); no loop over particles.

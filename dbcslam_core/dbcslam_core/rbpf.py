@@ -147,16 +147,20 @@ class FilterConfig:
       `normal` (the component along the contact normal: measured better on synthetic and
       pybullet pushes, the tangential part is the most model-sensitive and biased stick/slide
       towards sliding with the lowest pusher friction) or `both`.
-    * friction_bank: keep, per particle, one copy of the continuous state (q, v, mode
-      marginals) per joint friction hypothesis b, moved with friction b only and driven by the
-      same random numbers (`friction_bank`); the particle's friction belief fric[i, b] is
-      updated by the predictive likelihood of its b-copy, the particle weight by their
-      fric-weighted sum, and resampling moves whole banks. Costs B times the sub-particles of
-      the single-copy filter (B = product of the pairs' candidate counts), but the belief no
-      longer turns one-hot on the candidate that one sampled velocity favoured at an impact
-      (the friction collapse at small particle counts, README "Known weakness"). False: one
-      continuous state per particle, b sampled with it (the closed-form posterior given the
-      sampled state).
+    * friction_copies: how the continuous state carries the friction hypotheses (B = product
+      of the pairs' candidate counts; the step runs on P x B rows, costing ~B times the
+      reduced dynamics of `none`):
+      `none`: one state per particle, b drawn with the sampled state and its closed-form
+      posterior given that state (at small particle counts the belief turns one-hot at an
+      impact and resampling on pose spreads one label: README "Known weakness");
+      `bank`: per particle a bank of B copies of (q, v, mode marginals), copy b moved with
+      friction b only, all copies driven by the same random numbers (`friction_bank`); the
+      particle's belief fric[i, b] is updated by the predictive likelihood of copy b, its
+      weight by their fric-weighted sum, and whole banks resample;
+      `filters`: B fixed-friction particle filters (columns of P rows, common random
+      numbers), each resampled on its own weights; a global belief updated by each filter's
+      step evidence (Bayesian model averaging; exact for a time-invariant friction, eq. (7)
+      applied to the global belief). Public arrays (q, v, log_w, fric) are its P x B rows.
     """
 
     particles: int = 500
@@ -252,8 +256,9 @@ class FilterConfig:
 
         edge: friction varies along the edge -> eq. (7) mixture, prior mixed back in while in
         contact and fully out of contact. gripper / push: one time-invariant coefficient ->
-        `reuse` (the belief accumulates over the whole grasp), with a friction bank per
-        particle (`friction_bank`: no collapse onto one candidate at small particle counts).
+        `reuse` (the belief accumulates over the whole grasp). gripper: a friction bank per
+        particle (`friction_copies`: no collapse onto one candidate at small particle
+        counts).
         gripper: contact gap residuals
         within gap_tolerance close at gap_closure per step (jaw-estimate jumps vs light
         contacts; `transition.contact_gap`).
@@ -276,11 +281,13 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
-                # one continuous state per friction candidate: no friction collapse at small
-                # particle counts (README "Known weakness")
-                "friction_copies": "bank",
             }
             if kind == "gripper":
+                # one continuous state per friction candidate: no friction collapse at small
+                # particle counts (README "Known weakness"). Not for push: on bags/push the
+                # bank ended confidently on a wrong pusher friction in 4 of 5 seeds at 500
+                # particles (none: soft posteriors)
+                base["friction_copies"] = "bank"
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
                 # jumps of the jaw estimate (0.14 mm rms): contact gap residuals of persisting
                 # contacts are estimate errors and close slowly (`transition.contact_gap`)
@@ -1095,7 +1102,7 @@ class DbcSlamFilter:
         post: _Posterior,
         inp: _StepInputs,
     ) -> Estimate:
-        """The rest of the step with a friction bank (`friction_bank`): the copies' evidence
+        """The rest of the step with a friction bank (friction_copies='bank'): the copies' evidence
         updates each bank's friction belief and weight, eq. (7) at bank level, the copies
         move, the map history gets every copy under its share of the bank's belief, whole
         banks resample, and the estimate averages the copies."""
