@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core import kernels
+from dbcslam_core.angles import wrap_angle
 from dbcslam_core.errors import ModelError
 
 __all__ = [
@@ -50,12 +52,6 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 _LOG_2PI = math.log(2.0 * math.pi)
-
-
-def wrap_angle(a: npt.ArrayLike) -> FloatArray:
-    """Wrap angles (rad) to [-pi, pi)."""
-    x = np.asarray(a, dtype=np.float64)
-    return np.asarray((x + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -645,11 +641,15 @@ def sample_gaussian_proposal(
     v_cov: npt.ArrayLike,
     dt: float,
     rng: np.random.Generator,
+    draw: Callable[[tuple[int, ...]], FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Draw (v', e_q) (N, nq) for the chosen hypotheses (rows of prop's arrays).
 
     v' ~ N(v_mean, v_cov) via a jittered Cholesky factor; then e_q | v' on observed dims.
+    draw(shape): the standard normals (default rng.standard_normal; e.g. shared by rows
+    that must see the same noise).
     """
+    normals = rng.standard_normal if draw is None else draw
     vm = np.asarray(v_mean, dtype=np.float64)
     cov = np.asarray(v_cov, dtype=np.float64)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -661,7 +661,7 @@ def sample_gaussian_proposal(
     ar = np.arange(n)
     cov[..., ar, ar] += 1e-12 * np.maximum(scale, 1e-300)[..., None]  # jitter on the diagonal
     low = _chol_entries(cov)
-    z = rng.standard_normal(vm.shape)
+    z = normals(vm.shape)
     corr = np.stack(
         [
             sum((low[i][k] * z[..., k] for k in range(1, i + 1)), low[i][0] * z[..., 0])
@@ -673,7 +673,7 @@ def sample_gaussian_proposal(
     y = np.asarray(innovation, dtype=np.float64)
     r = y - dt * (v_new - np.asarray(v_h, dtype=np.float64))
     q_mean = np.where(prop.observed, prop.q_gain * r, 0.0)
-    e_q = q_mean + prop.q_std * rng.standard_normal(vm.shape)
+    e_q = q_mean + prop.q_std * normals(vm.shape)
     return np.asarray(v_new, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
 
 

@@ -11,6 +11,11 @@ of `contact_modes.Mode`):
   marginals conditioned on b;
 * the particle's rows of the friction map's fixed-lag history (`MapHistory`).
 
+With a friction bank (`FilterConfig.friction_bank`) each particle carries `copies` = B copies
+of its continuous state and mode marginals, one per joint friction hypothesis (rows
+i * B + b of q, v, fric, modes; their friction axis has length 1), and its friction belief
+is `bank[i, b]`; log_w and the history stay per particle.
+
 Resampling moves all of it as one object (`ParticleSet.resample`).
 """
 
@@ -80,17 +85,30 @@ class ParticleSet:
     fric: FloatArray
     modes: FloatArray
     history: MapHistory
+    bank: FloatArray | None = None
+    copies: int = 1
 
     @property
     def size(self) -> int:
-        """Number of particles P."""
+        """Number of rows of the state arrays (particles x copies)."""
         return int(self.q.shape[0])
 
+    @property
+    def count(self) -> int:
+        """Number of particles P (weights)."""
+        return int(self.log_w.shape[0])
+
     def resample(self, idx: IntArray) -> None:
-        """Replace the set by the particles idx (P,) with equal weights."""
-        self.q = self.q[idx]
-        self.v = self.v[idx]
-        self.fric = self.fric[idx]
-        self.modes = self.modes[idx]
+        """Replace the set by the particles idx (P,) with equal weights (a particle's copies
+        move with it)."""
+        rows = idx
+        if self.copies > 1:
+            rows = (idx[:, None] * self.copies + np.arange(self.copies)).reshape(-1)
+        self.q = self.q[rows]
+        self.v = self.v[rows]
+        self.fric = self.fric[rows]
+        self.modes = self.modes[rows]
+        if self.bank is not None:
+            self.bank = self.bank[idx]
         self.history.take(idx)
         self.log_w = np.zeros(idx.size)

@@ -15,6 +15,7 @@ centre of mass; twists (vx, vy[, omega]) in the world frame.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -36,15 +37,6 @@ from dbcslam_core.dynamics import PlanarModel
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
-from dbcslam_core.friction_bank import (
-    FrictionBank,
-    bank_mean,
-    combine_evidence,
-    sample_shared_proposal,
-    shared_normal,
-    shared_uniform,
-    weighted_rows,
-)
 from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
 from dbcslam_core.observation import (
     ForceObservation,
@@ -79,10 +71,7 @@ from dbcslam_core.transition import (
     soft_modes,
 )
 
-__all__ = ["FRICTION_COPIES", "DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
-
-FRICTION_COPIES = ("none", "bank", "filters")
-"""Values of `FilterConfig.friction_copies`."""
+__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -147,20 +136,18 @@ class FilterConfig:
       `normal` (the component along the contact normal: measured better on synthetic and
       pybullet pushes, the tangential part is the most model-sensitive and biased stick/slide
       towards sliding with the lowest pusher friction) or `both`.
-    * friction_copies: how the continuous state carries the friction hypotheses (B = product
-      of the pairs' candidate counts; the step runs on P x B rows, costing ~B times the
-      reduced dynamics of `none`):
-      `none`: one state per particle, b drawn with the sampled state and its closed-form
-      posterior given that state (at small particle counts the belief turns one-hot at an
-      impact and resampling on pose spreads one label: README "Known weakness");
-      `bank`: per particle a bank of B copies of (q, v, mode marginals), copy b moved with
-      friction b only, all copies driven by the same random numbers (`friction_bank`); the
-      particle's belief fric[i, b] is updated by the predictive likelihood of copy b, its
-      weight by their fric-weighted sum, and whole banks resample;
-      `filters`: B fixed-friction particle filters (columns of P rows, common random
-      numbers), each resampled on its own weights; a global belief updated by each filter's
-      step evidence (Bayesian model averaging; exact for a time-invariant friction, eq. (7)
-      applied to the global belief). Public arrays (q, v, log_w, fric) are its P x B rows.
+    * friction_bank: every particle carries one copy of the continuous state (and of the mode
+      marginals) per joint friction hypothesis b, driven by the same random numbers (a bank
+      of B fixed-friction sub-filters per particle). The friction belief of a particle is
+      then updated by the predictive likelihood of its b-copies, p(b | o) proportional to
+      p(b) prod_l p(o_l | o_{<l}, b, copy b), instead of being conditioned on one sampled
+      velocity: without the bank, an impact's sampled velocity fits one b only, each
+      particle's closed-form belief turns one-hot there and resampling on pose spreads a
+      label (at 40 particles the gripper ended on a wrong coefficient in 4 of 5 seeds).
+      Resampling moves whole banks. Requires the time-invariant `reuse` parameter model
+      (the copies would need IMM-style mixing for a coefficient that changes between
+      steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
+      the reduced solves and proposals are as many as without the bank.
     """
 
     particles: int = 500
@@ -195,7 +182,7 @@ class FilterConfig:
     joint_maneuver_accel_std: float | None = None
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
-    friction_copies: str = "none"
+    friction_bank: bool = False
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -240,14 +227,14 @@ class FilterConfig:
         ):
             msg = f"gap_tolerance must be None or a finite gap >= 0 m, got {self.gap_tolerance}"
             raise ModelError(msg)
-        if self.friction_copies not in FRICTION_COPIES:
-            msg = (
-                f"friction_copies must be one of {list(FRICTION_COPIES)}, got "
-                f"{self.friction_copies!r}"
-            )
-            raise ModelError(msg)
         if self.map_lag < 0:
             msg = f"map_lag must be >= 0, got {self.map_lag}"
+            raise ModelError(msg)
+        if self.friction_bank and self.parameter_model != "reuse":
+            msg = (
+                "friction_bank needs the time-invariant parameter_model 'reuse' (a coefficient "
+                f"that changes between steps would need IMM mixing), got {self.parameter_model!r}"
+            )
             raise ModelError(msg)
 
     @classmethod
@@ -256,10 +243,7 @@ class FilterConfig:
 
         edge: friction varies along the edge -> eq. (7) mixture, prior mixed back in while in
         contact and fully out of contact. gripper / push: one time-invariant coefficient ->
-        `reuse` (the belief accumulates over the whole grasp). gripper: a friction bank per
-        particle (`friction_copies`: no collapse onto one candidate at small particle
-        counts).
-        gripper: contact gap residuals
+        `reuse` (the belief accumulates over the whole grasp). gripper: contact gap residuals
         within gap_tolerance close at gap_closure per step (jaw-estimate jumps vs light
         contacts; `transition.contact_gap`).
         """
@@ -283,16 +267,15 @@ class FilterConfig:
                 "map_cell": 0.005,
             }
             if kind == "gripper":
-                # one continuous state per friction candidate: no friction collapse at small
-                # particle counts (README "Known weakness"). Not for push: on bags/push the
-                # bank ended confidently on a wrong pusher friction in 4 of 5 seeds at 500
-                # particles (none: soft posteriors)
-                base["friction_copies"] = "bank"
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
                 # jumps of the jaw estimate (0.14 mm rms): contact gap residuals of persisting
                 # contacts are estimate errors and close slowly (`transition.contact_gap`)
                 base["gap_closure"] = 0.05
                 base["gap_tolerance"] = 1e-3
+                # one state copy per friction candidate (the gripper's belief collapsed at
+                # small particle counts); not for push: on bags/push the bank ended
+                # confidently on a wrong pusher coefficient (0.1 / 0.3 at 500 particles)
+                base["friction_bank"] = True
             if kind == "push":
                 # constant-speed pusher: a stiff joint smoother (the pusher's position and
                 # velocity enter sticking impulses and the predicted pusher force at 1/dt)
@@ -334,6 +317,9 @@ class Estimate:
     live_hypotheses: mean number of live joint mode hypotheses per particle.
     log_likelihood: log p(o_l | o_{0:l-1}) (0 without observation). resampled: whether the
     particles were resampled in this step. step: step counter (1 for the first step).
+    particle_poses (R, nq) and particle_weights (R,): the particle cloud the estimate was
+    computed from (rows of the state arrays before resampling; weights sum to 1), e.g. for
+    visualisation.
     """
 
     step: int
@@ -348,6 +334,18 @@ class Estimate:
     live_hypotheses: float
     log_likelihood: float
     resampled: bool
+    particle_poses: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    particle_weights: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def non_finite_field(self) -> str | None:
+        """Name of the first output field holding a NaN or infinity (None: all finite)."""
+        for name in ("pose", "pose_cov", "twist", "twist_cov", "modes", "friction"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                return name
+        for pair, probs in enumerate(self.friction_map.probs):
+            if not np.all(np.isfinite(probs)):
+                return f"friction map (pair {pair})"
+        return None
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
@@ -474,6 +472,33 @@ class DbcSlamFilter:
         self._obs_model = PoseObservationModel(
             self.nq, scenario.noise.position, scenario.noise.yaw if self.nq == 3 else 0.0
         )
+        self._init_contacts()
+        self._init_friction()
+        self._scales = ViolationScales(
+            impulse=cfg.violation_impulse,
+            velocity=cfg.violation_velocity,
+            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
+        )
+        self._resampler = make_resampler(cfg.resampler)
+        prior = scenario.friction.prior
+        self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
+        self._initialised = False
+        self._step = 0
+        self._joints_prev: FloatArray | None = None
+        self._joint_filter = JointSmoother(
+            len(scenario.joints),
+            self.dt,
+            scenario.noise.joint,
+            cfg.joint_accel_std,
+            maneuver_accel_std=cfg.joint_maneuver_accel_std,
+        )
+        self.particles = self._empty_particles()
+
+    def _init_contacts(self) -> None:
+        """Static contact structure: layout for the geometric exclusions, friction pair and
+        obstacle of each contact, edge partners, the default force obstacle (a single
+        disk: the pusher)."""
+        scenario = self.scenario
         pcs = scenario.potential_contacts
         self._layout = ContactLayout(
             feature_vertex=tuple(c.vertex for c in pcs),
@@ -499,7 +524,12 @@ class DbcSlamFilter:
         self._contact_obstacle = np.asarray([c.obstacle for c in pcs], dtype=np.int64)
         disks = [i for i, o in enumerate(obstacles) if isinstance(o, Disk)]
         self._default_force_obstacle: int | None = disks[0] if len(disks) == 1 else None
-        fr = scenario.friction
+
+    def _init_friction(self) -> None:
+        """Joint friction hypotheses beta (B, pairs), their coefficients per contact, the
+        friction bank's copies, the support coefficient per hypothesis and the priors."""
+        cfg = self.config
+        fr = self.scenario.friction
         self.n_pairs = len(fr.pairs)
         self._n_cand = [len(c) for c in fr.candidates]
         self._k_max = max(self._n_cand)
@@ -524,21 +554,19 @@ class DbcSlamFilter:
         self._mu = np.stack(
             [cand[int(p)][beta[:, int(p)]] for p in self._contact_pair], axis=-1
         )  # (B, C)
-        # the step's rows and their friction axis: one row per particle with the B hypotheses
-        # in closed form, or (friction bank) one row per (particle, b) with its friction only
-        self._copies = cfg.friction_copies
-        self._banked = self._copies != "none"
-        self._n_in = 1 if self._banked else self.n_b
-        n_rows = cfg.particles * (self.n_b if self._banked else 1)
-        self._mu_in = (
-            np.tile(self._mu[:, None, :], (cfg.particles, 1, 1))
-            if self._banked
-            else self._mu[None]
-        )  # (rows or 1, B_in, C) friction of each contact per row and friction column
-        # flat index of pred[p, b, c, m] (rows, B_in, C, 4): p * stride + offset[b, c] + m
-        self._pred_stride = self._n_in * self.n_c * N_MODES
+        # friction bank: n_sub copies of each particle, one per friction hypothesis, whose
+        # arrays carry a friction axis of length n_fb = 1 (sub-particle j = i * n_sub + b has
+        # hypothesis _sub_b[j]); without the bank n_sub = 1 and the arrays carry all B
+        self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
+        self._n_sub = self.n_b if self._bank else 1
+        self.n_fb = 1 if self._bank else self.n_b
+        self._sub_b: IntArray | None = (
+            np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
+        )
+        # flat index of pred[p, b, c, m] (P, B, C, 4): p * stride + offset[b, c] + m
+        self._pred_stride = self.n_fb * self.n_c * N_MODES
         self._pred_offset = (
-            np.arange(self._n_in)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
+            np.arange(self.n_fb)[:, None] * self.n_c + np.arange(self.n_c)[None, :]
         ) * N_MODES
         # support friction (push): coefficient per friction hypothesis b, or None
         sp = self.model.surface_pair
@@ -549,13 +577,6 @@ class DbcSlamFilter:
         else:
             known = self.model.surface_mu()
             self._mu_surface = None if known is None else np.full(self.n_b, float(known))
-        self._mu_surface_in: FloatArray | None = None  # (rows or 1, B_in)
-        if self._mu_surface is not None:
-            self._mu_surface_in = (
-                np.tile(self._mu_surface, cfg.particles)[:, None]
-                if self._banked
-                else self._mu_surface[None]
-            )
         self._prior_pair = [np.asarray(p, dtype=np.float64) for p in fr.prior]
         if cfg.frozen_friction is not None:
             self._prior_b = np.ones(1)
@@ -564,113 +585,65 @@ class DbcSlamFilter:
             for p in range(self.n_pairs):
                 pri = pri * self._prior_pair[p][beta[:, p]]
             self._prior_b = pri / pri.sum()
-        self._scales = ViolationScales(
-            impulse=cfg.violation_impulse,
-            velocity=cfg.violation_velocity,
-            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
-        )
-        self._resampler = make_resampler(cfg.resampler)
-        self.map = FrictionMap(fr.prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
-        self._initialised = False
-        self._step = 0
-        self._joints_prev: FloatArray | None = None
-        self._joint_filter = JointSmoother(
-            len(scenario.joints),
-            self.dt,
-            scenario.noise.joint,
-            cfg.joint_accel_std,
-            maneuver_accel_std=cfg.joint_maneuver_accel_std,
-        )
-        modes0 = np.zeros((n_rows, self._n_in, self.n_c, N_MODES))
-        modes0[..., Mode.SEPARATED] = 1.0
-        # the rows of the step (particles, or the banks' sub-particles)
-        self.particles = ParticleSet(
-            q=np.zeros((n_rows, self.nq)),
-            v=np.zeros((n_rows, self.nq)),
-            log_w=np.zeros(n_rows),
-            fric=self._fric_rows(n_rows),
-            modes=modes0,
-            history=MapHistory(cfg.map_lag, n_rows, self.n_pairs * self._k_max + 2 * self.n_c),
-        )
-        self.bank: FrictionBank | None = (
-            FrictionBank(np.tile(self._prior_b, (cfg.particles, 1)), np.zeros(cfg.particles))
-            if self._banked
-            else None
-        )
+        self._prior_fb = np.ones(1) if self._bank else self._prior_b  # arrays' friction axis
         # contacts of each friction pair (None: all contacts belong to the pair)
         self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
             None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
             for pr in range(self.n_pairs)
         ]
 
-    # ------------------------------------------------------------- particle arrays
-    def _fric_rows(self, n_rows: int) -> FloatArray:
-        """Friction columns of fresh rows (rows, B_in): the prior, or 1 for bank copies."""
-        if self._banked:
-            return np.ones((n_rows, 1))
-        return np.tile(self._prior_b, (n_rows, 1))
+    def _empty_particles(self) -> ParticleSet:
+        """The particle set before initialisation (all contacts separated, prior friction)."""
+        cfg = self.config
+        n_sub_particles = cfg.particles * self._n_sub
+        modes0 = np.zeros((n_sub_particles, self.n_fb, self.n_c, N_MODES))
+        modes0[..., Mode.SEPARATED] = 1.0
+        return ParticleSet(
+            q=np.zeros((n_sub_particles, self.nq)),
+            v=np.zeros((n_sub_particles, self.nq)),
+            log_w=np.zeros(cfg.particles),
+            fric=np.tile(self._prior_fb, (n_sub_particles, 1)),
+            modes=modes0,
+            history=MapHistory(
+                cfg.map_lag, cfg.particles, self.n_pairs * self._k_max + 2 * self.n_c
+            ),
+            bank=np.tile(self._prior_b, (cfg.particles, 1)) if self._bank else None,
+            copies=self._n_sub,
+        )
 
+    # ------------------------------------------------------------- particle arrays
     @property
     def q(self) -> FloatArray:
-        """Particle poses (P, nq) (m, m[, rad]), world frame. Friction bank: the mean of each
-        bank's copies under its friction belief; setting it moves every copy by the change."""
-        if self.bank is None or self._copies == "filters":
-            return self.particles.q
-        return bank_mean(self.particles.q, self.bank.fric, angular=self.nq == 3)
+        """Particle poses (P, nq) (m, m[, rad]), world frame."""
+        return self.particles.q
 
     @q.setter
     def q(self, value: FloatArray) -> None:
-        if self.bank is None or self._copies == "filters":
-            self.particles.q = value
-            return
-        delta = np.asarray(value, dtype=np.float64) - self.q
-        q = self.particles.q + np.repeat(delta, self.n_b, axis=0)
-        if self.nq == 3:
-            q[:, 2] = wrap_angle(q[:, 2])
-        self.particles.q = q
+        self.particles.q = value
 
     @property
     def v(self) -> FloatArray:
-        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame (friction bank: as q)."""
-        if self.bank is None or self._copies == "filters":
-            return self.particles.v
-        return weighted_rows(self.particles.v, self.bank.fric)
+        """Particle twists (P, nq) (m/s, m/s[, rad/s]), world frame."""
+        return self.particles.v
 
     @v.setter
     def v(self, value: FloatArray) -> None:
-        if self.bank is None or self._copies == "filters":
-            self.particles.v = value
-            return
-        delta = np.asarray(value, dtype=np.float64) - self.v
-        self.particles.v = self.particles.v + np.repeat(delta, self.n_b, axis=0)
+        self.particles.v = value
 
     @property
     def log_w(self) -> FloatArray:
         """Unnormalised log weights (P,)."""
-        if self.bank is None:
-            return self.particles.log_w
-        if self._copies == "filters":  # column weights x the belief in the column's friction
-            with np.errstate(divide="ignore"):
-                lb = np.log(np.tile(self.bank.fric[0], self.bank.size))
-            return np.asarray(self.particles.log_w + lb, dtype=np.float64)
-        return self.bank.log_w
+        return self.particles.log_w
 
     @property
     def fric(self) -> FloatArray:
         """Friction belief over the joint friction hypotheses (P, B)."""
-        if self.bank is None:
-            return self.particles.fric
-        if self._copies == "filters":  # the global belief, per row
-            return np.tile(self.bank.fric[0], (self.particles.size, 1))
-        return self.bank.fric
+        return self.particles.fric
 
     @property
     def modes(self) -> FloatArray:
         """Per-contact mode marginals given the friction hypothesis (P, B, C, 4)."""
-        m = self.particles.modes
-        if self.bank is None or self._copies == "filters":
-            return m
-        return m.reshape(self.config.particles, self.n_b, self.n_c, N_MODES)
+        return self.particles.modes
 
     # ------------------------------------------------------------------ initialisation
     def initialize(
@@ -699,6 +672,9 @@ class DbcSlamFilter:
         v = vm + vs * self.rng.standard_normal((p, self.nq))
         if self.nq == 3:
             q[:, 2] = wrap_angle(q[:, 2])
+        if self._n_sub > 1:  # the bank's copies start from their particle's state
+            q = np.repeat(q, self._n_sub, axis=0)
+            v = np.repeat(v, self._n_sub, axis=0)
         if joints is not None:
             self._joints_prev = self._joint_filter.reset(joints)
         env = self._joints_prev if self._joints_prev is not None else None
@@ -706,16 +682,15 @@ class DbcSlamFilter:
         an = np.einsum("pcv,pv->pc", kin.Jn, v) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
-        rows = p
-        if self.bank is not None:  # every copy of a bank starts from the particle's draw
-            rows = p * self.n_b
-            q, v, soft = (np.repeat(a, self.n_b, axis=0) for a in (q, v, soft))
-            self.bank.fric = np.tile(self._prior_b, (p, 1))
-            self.bank.log_w = np.zeros(p)
         ps = self.particles
-        ps.q, ps.v, ps.log_w = q, v, np.zeros(rows)
-        ps.fric = self._fric_rows(rows)
-        ps.modes = np.broadcast_to(soft[:, None], (rows, self._n_in, self.n_c, N_MODES)).copy()
+        n_sub_particles = q.shape[0]
+        ps.q, ps.v, ps.log_w = q, v, np.zeros(p)
+        ps.fric = np.tile(self._prior_fb, (n_sub_particles, 1))
+        ps.modes = np.broadcast_to(
+            soft[:, None], (n_sub_particles, self.n_fb, self.n_c, N_MODES)
+        ).copy()
+        if ps.bank is not None:
+            ps.bank = np.tile(self._prior_b, (p, 1))
         ps.history.clear()
         self._initialised = True
 
@@ -765,17 +740,16 @@ class DbcSlamFilter:
         dyn = self._hypothesis_dynamics(ent, free, inp)
         prop = self._propose(ent, dyn, inp)
         post = self._discrete_posterior(ent, dyn, prop)
-        if self.bank is not None:
-            if self._copies == "filters":
-                return self._filters_update(self.bank, ent, prop, post, inp)
-            return self._bank_update(self.bank, ent, prop, post, inp)
+        incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
         self._update_beliefs(post)
-        log_ml = self._reweight(prop.incr, inp)
+        log_ml = self._reweight(incr, inp)
         w = self._move(prop, post, inp.joints)
+        row_w = self._row_weights(w)
         ess, resampled = self._maybe_resample(w)
         map_w = normalise_log_weights(self.particles.log_w)[0] if resampled else w
         return self._estimate(
             w=w,  # the pre-resampling weights (lower variance)
+            row_w=row_w,  # the same per row of the state arrays (bank copies)
             map_w=map_w,  # the map snapshot: the (resampled) particles' weights
             q=prop.q_new,
             v=prop.v_new,
@@ -844,15 +818,16 @@ class DbcSlamFilter:
         kin = contact_kinematics(self.scenario, ps.q, inp.env0, inp.env_vel)
         m_eff: FloatArray | None = None
         v_free_b: FloatArray | None = None
-        if self._mu_surface_in is None:
+        if self._mu_surface is None:
             f = self.model.generalized_force(ps.q, ps.v, inp.u)
             v_free = ps.v + dt * f * self._inv_mass
-        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
-            m_eff = (
-                self.model.mass_matrix + dt * self._mu_surface_in[:, :, None, None] * k1[:, None]
+        else:  # support friction linearised at the particle velocity (dynamic or quasi-static)
+            mu_s = (  # (B,) or per bank copy (P B, 1)
+                self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
+            m_eff, v_free_b = self.model.support_terms(
+                ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
+            )
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
@@ -899,8 +874,8 @@ class DbcSlamFilter:
         # log prior per entry and friction hypothesis: sum_c log pred[p, b, c, mode_c]
         pbcm = (pi * self._pred_stride)[:, None, None] + self._pred_offset + modes_n[:, None, :]
         pred_full = pred
-        if pred.shape != (n_p, self._n_in, self.n_c, N_MODES):
-            pred_full = np.broadcast_to(pred, (n_p, self._n_in, self.n_c, N_MODES))
+        if pred.shape != (n_p, self.n_fb, self.n_c, N_MODES):
+            pred_full = np.broadcast_to(pred, (n_p, self.n_fb, self.n_c, N_MODES))
         with np.errstate(divide="ignore"):
             lp = sum_last(np.log(pred_full.take(pbcm)))  # (N, B)
         return _Entries(hyp, n_k, pi, ki, slot, modes_n, pbcm, lp)
@@ -923,7 +898,7 @@ class DbcSlamFilter:
             None if free.m_eff is None else free.m_eff.take(ent.pi, axis=0),
             sensitivity=inp.force is not None,
         )
-        l_cond = np.full((n_p, ent.n_k, self._n_in), -np.inf)
+        l_cond = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         l_cond[ent.pi, ent.ki] = ent.lp - 0.5 * sol.score
         l_cond = l_cond - self._lse(l_cond, 1)[:, None, :]
         with np.errstate(divide="ignore"):
@@ -958,32 +933,24 @@ class DbcSlamFilter:
             inp.lin,
             sigma_q=self._sigma_q,
         )
-        log_joint = np.full((n_p, ent.n_k, self._n_in), -np.inf)
+        log_joint = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         log_joint[ent.pi, ent.ki] = dyn.log_alpha + prop.log_pred
         flat = log_joint.reshape(n_p, -1)
         incr = self._lse(flat, 1)  # (P,)
-        bank = self.bank
-        if bank is None:
-            uni = self.rng.random(flat.shape)
-        else:  # the copies of a bank share their random numbers
-            uni = shared_uniform(self.rng, bank.size, bank.n_b, flat.shape[1:])
-        gumbel = -np.log(-np.log(uni))
+        gumbel = -np.log(-np.log(self._shared_draws(self.rng.random, flat.shape)))
         pick = np.argmax(np.where(np.isfinite(flat), flat + gumbel, -np.inf), axis=1)
-        k_star, b_star = np.unravel_index(pick, (ent.n_k, self._n_in))
+        k_star, b_star = np.unravel_index(pick, (ent.n_k, self.n_fb))
         n_star = ent.slot[np.arange(n_p), k_star]
-        chosen = {
-            "v_h": dyn.v_h[n_star, b_star],
-            "innovation": prop.innovation[n_star, b_star],
-            "v_mean": prop.v_mean[n_star, b_star],
-            "v_cov": prop.v_cov[n_star, b_star],
-        }
-        if bank is None:
-            v_new, e_q = sample_gaussian_proposal(prop, **chosen, dt=dt, rng=self.rng)
-        else:
-            tail = (self.nq,)
-            z_v = shared_normal(self.rng, bank.size, bank.n_b, tail)
-            z_q = shared_normal(self.rng, bank.size, bank.n_b, tail)
-            v_new, e_q = sample_shared_proposal(prop, **chosen, dt=dt, z_v=z_v, z_q=z_q)
+        v_new, e_q = sample_gaussian_proposal(
+            prop,
+            v_h=dyn.v_h[n_star, b_star],
+            innovation=prop.innovation[n_star, b_star],
+            v_mean=prop.v_mean[n_star, b_star],
+            v_cov=prop.v_cov[n_star, b_star],
+            dt=dt,
+            rng=self.rng,
+            draw=None if self._n_sub == 1 else self._shared_normals,
+        )
         q_new = self.particles.q + dt * v_new + e_q
         if self.nq == 3:
             q_new[:, 2] = wrap_angle(q_new[:, 2])
@@ -994,7 +961,7 @@ class DbcSlamFilter:
         joint over (hypothesis, friction), then the friction belief (P, B), the per-contact
         mode marginals given b (P, B, C, 4) and overall (P, C, 4), and P(pair in contact)."""
         n_p = self.particles.size
-        log_post = np.full((n_p, ent.n_k, self._n_in), -np.inf)
+        log_post = np.full((n_p, ent.n_k, self.n_fb), -np.inf)
         v_rel = prop.v_new.take(ent.pi, axis=0)[:, None, :] - dyn.v_h
         dens = gaussian_log_density(v_rel, dyn.cov_h)
         log_post[ent.pi, ent.ki] = np.where(
@@ -1010,7 +977,7 @@ class DbcSlamFilter:
             ent.pbcm.reshape(-1),
             weights=np.repeat(post_n.reshape(-1), self.n_c),  # post_n[n, b] for every c
             minlength=n_p * self._pred_stride,
-        ).reshape(n_p, self._n_in, self.n_c, N_MODES)
+        ).reshape(n_p, self.n_fb, self.n_c, N_MODES)
         marg_post = num.sum(axis=1)  # (P, C, 4)
         tiny = 1e-12
         modes_post = (num + tiny * marg_post[:, None]) / (fric_post[:, :, None, None] + tiny)
@@ -1028,14 +995,71 @@ class DbcSlamFilter:
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
         p_contact = 1.0 - marg_post[:, :, Mode.SEPARATED]  # (P, C)
-        # (P, pairs, Kmax); friction bank: per bank, after combining the copies
-        fric_pair = self._pair_marginals(fric_post) if self.bank is None else np.empty(0)
+        # (P, pairs, Kmax); a bank's copies have one friction each: `_bank_evidence` sets it
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
         return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
+
+    def _bank_evidence(self, incr_rows: FloatArray, post: _Posterior) -> FloatArray:
+        """Friction bank: each particle's evidence (P,) = log sum_b bank[i, b] p(o | copy b)
+        from its copies' evidence (P B,); the bank belief becomes the posterior (held at the
+        prior during `friction_hold_steps`); the per-pair friction marginals and P(in
+        contact) of the particle (for the map and the estimate) from the bank."""
+        ps = self.particles
+        assert ps.bank is not None
+        n_p = ps.count
+        with np.errstate(divide="ignore"):
+            joint = np.log(ps.bank) + incr_rows.reshape(n_p, self._n_sub)
+        incr = self._lse(joint, 1)
+        if self._step > self.config.friction_hold_steps:
+            ok = np.isfinite(incr)
+            ps.bank = np.where(
+                ok[:, None], np.exp(joint - np.where(ok, incr, 0.0)[:, None]), ps.bank
+            )
+        post.fric_pair = self._pair_marginals(ps.bank)
+        post.p_contact = np.einsum(
+            "pb,pbc->pc", ps.bank, post.p_contact.reshape(n_p, self._n_sub, self.n_c)
+        )
+        return incr
+
+    def _shared_draws(
+        self, draw: Callable[[tuple[int, ...]], FloatArray], shape: tuple[int, ...]
+    ) -> FloatArray:
+        """Random numbers of `shape` (rows first); a bank's copies share their particle's
+        (common random numbers: the copies differ by their friction only)."""
+        if self._n_sub == 1:
+            return draw(shape)
+        per_particle = draw((shape[0] // self._n_sub, *shape[1:]))
+        return np.repeat(per_particle, self._n_sub, axis=0)
+
+    def _shared_normals(self, shape: tuple[int, ...]) -> FloatArray:
+        """Standard normals of `shape`, shared by a bank's copies (`_shared_draws`)."""
+        return self._shared_draws(self.rng.standard_normal, shape)
+
+    def _row_weights(self, w: FloatArray) -> FloatArray:
+        """Weights (P B,) of the rows of the state arrays: w (P,) x the bank belief."""
+        bank = self.particles.bank
+        return w if bank is None else np.asarray((w[:, None] * bank).reshape(-1))
+
+    def weighted_particles(self) -> tuple[FloatArray, FloatArray]:
+        """Particle poses (rows of the state arrays, (R, nq)) and their normalised weights
+        (R,) (bank copies weighted by their particle's friction belief): e.g. for markers."""
+        w, _ = normalise_log_weights(self.particles.log_w)
+        return self.particles.q, self._row_weights(w)
 
     def _update_beliefs(self, post: _Posterior) -> None:
         """Eq. (7): the predictive friction belief of the next step (held at the prior
         during `friction_hold_steps`) and the mode marginals given b."""
         ps = self.particles
+        if self._n_sub > 1:  # bank: per-copy friction is its own hypothesis
+            # a copy without any feasible hypothesis (zero evidence: its belief weight
+            # is 0 now) keeps its previous marginals instead of 0/0
+            bad = ~np.asarray(np.isfinite(post.modes_post).all(axis=(1, 2, 3)))
+            ps.modes = np.where(bad[:, None, None, None], ps.modes, post.modes_post)
+            return
         if self._step <= self.config.friction_hold_steps:
             # warm-up: wrong initial velocities are still being weeded out, and collisions
             # of those particles would bias the friction belief -> hold it at the prior.
@@ -1045,13 +1069,10 @@ class DbcSlamFilter:
             ps.fric = self._predict_friction(post.fric_post, post.fric_pair, post.pair_in)
         ps.modes = post.modes_post
 
-    def _reweight(
-        self, incr: FloatArray, inp: _StepInputs, ps: ParticleSet | FrictionBank | None = None
-    ) -> float:
-        """Multiply the weights of ps (default: the particles) by each particle's evidence;
-        returns the step's log marginal likelihood log p(o_l | o_{0:l-1}) (0 without
-        observation)."""
-        ps = self.particles if ps is None else ps
+    def _reweight(self, incr: FloatArray, inp: _StepInputs) -> float:
+        """Multiply the weights by each particle's evidence; returns the step's log marginal
+        likelihood log p(o_l | o_{0:l-1}) (0 without observation)."""
+        ps = self.particles
         w_prev, _ = normalise_log_weights(ps.log_w)
         with np.errstate(divide="ignore"):
             log_ml = (
@@ -1062,7 +1083,7 @@ class DbcSlamFilter:
         ps.log_w = ps.log_w + incr
         if not np.any(np.isfinite(ps.log_w)):
             msg = (
-                f"all {ps.size} particles have zero likelihood at step {self._step}: the "
+                f"all {ps.count} particles have zero likelihood at step {self._step}: the "
                 f"observation {inp.observation} is incompatible with the model"
             )
             raise ModelError(msg)
@@ -1074,182 +1095,28 @@ class DbcSlamFilter:
         ps = self.particles
         ps.q, ps.v = prop.q_new, prop.v_new
         w, _ = normalise_log_weights(ps.log_w)
-        self._push_history(post.fric_pair, post.p_contact, joints, w)
-        return w
-
-    def _push_history(
-        self, fric_pair: FloatArray, p_contact: FloatArray, joints: FloatArray, w: FloatArray
-    ) -> None:
-        """Append one step of the rows (fric_pair (rows, pairs, Kmax), P(in contact) (rows,
-        C), contact coordinates at the rows' poses) to the map history; the entry leaving
-        the lag window is committed under the row weights w (rows,)."""
-        ps = self.particles
         s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
+        if ps.bank is not None:  # a particle's s: its most probable copy's
+            s_new = s_new.reshape(ps.count, self._n_sub, self.n_c)
+            s_new = s_new[np.arange(ps.count), np.argmax(ps.bank, axis=1)]
         pk = self.n_pairs * self._k_max
-        row = np.empty((ps.size, ps.history.buf.shape[2]))
-        row[:, :pk] = fric_pair.reshape(ps.size, pk)
+        row = np.empty((ps.count, ps.history.buf.shape[2]))
+        row[:, :pk] = post.fric_pair.reshape(ps.count, pk)
         row[:, pk : pk + self.n_c] = s_new
-        row[:, pk + self.n_c :] = p_contact
+        row[:, pk + self.n_c :] = post.p_contact
         old = ps.history.push(row)
         if old is not None:
             self._commit(self.map, old[None], w)
-
-    def _bank_update(
-        self,
-        bank: FrictionBank,
-        ent: _Entries,
-        prop: _Proposal,
-        post: _Posterior,
-        inp: _StepInputs,
-    ) -> Estimate:
-        """The rest of the step with a friction bank (friction_copies='bank'): the copies' evidence
-        updates each bank's friction belief and weight, eq. (7) at bank level, the copies
-        move, the map history gets every copy under its share of the bank's belief, whole
-        banks resample, and the estimate averages the copies."""
-        n_b = bank.n_b
-        incr, fric_post = combine_evidence(bank.fric, prop.incr)  # (P,), (P, B)
-        pair_in = weighted_rows(post.pair_in, fric_post)  # (P, pairs)
-        fric_pair = self._pair_marginals(fric_post)  # (P, pairs, Kmax)
-        if self._step <= self.config.friction_hold_steps:
-            bank.fric = np.tile(self._prior_b, (bank.size, 1))  # see _update_beliefs
-            fric_pair = self._pair_marginals(bank.fric)
-        else:
-            bank.fric = self._predict_friction(fric_post, fric_pair, pair_in)
-        ps = self.particles
-        ps.modes = post.modes_post  # (P B, 1, C, 4): given the copy's own friction
-        log_ml = self._reweight(incr, inp, bank)
-        ps.q, ps.v = prop.q_new, prop.v_new
-        w, _ = normalise_log_weights(bank.log_w)
-        share = fric_post.reshape(-1)  # (P B,) each copy's share of its bank
-        fric_pair_rows = np.repeat(fric_pair, n_b, axis=0)
-        self._push_history(
-            fric_pair_rows, post.p_contact * share[:, None], inp.joints, np.repeat(w, n_b)
-        )
-        ess = effective_sample_size(w)
-        resampled = ess < self.config.ess_threshold * bank.size
-        if resampled:
-            bank.resample(self._resampler(w, self.rng), ps)
-        map_w = normalise_log_weights(bank.log_w)[0] if resampled else w
-        return self._estimate(
-            w=(w[:, None] * fric_post).reshape(-1),
-            map_w=np.repeat(map_w, n_b),
-            q=prop.q_new,
-            v=prop.v_new,
-            marg_post=post.marg_post,
-            fric_pair=fric_pair_rows,
-            ess=ess,
-            live=float(ent.hyp.n_live.mean()),
-            log_ml=log_ml,
-            resampled=resampled,
-        )
+        return w
 
     def _maybe_resample(self, w: FloatArray) -> tuple[float, bool]:
         """Resample when the effective sample size falls below the threshold; returns
         (ESS before resampling, whether the set was resampled)."""
         ess = effective_sample_size(w)
-        if ess >= self.config.ess_threshold * self.particles.size:
+        if ess >= self.config.ess_threshold * self.particles.count:
             return ess, False
         self.particles.resample(self._resampler(w, self.rng))
         return ess, True
-
-    def _column_weights(self) -> tuple[FloatArray, FloatArray]:
-        """friction_copies='filters': normalised weights within each column (P, B) and
-        their log."""
-        ps = self.particles
-        n_b = self.n_b
-        logw = ps.log_w.reshape(-1, n_b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lw = logw - self._lse(logw.T, 1)[None, :]
-        # a column whose particles all have zero likelihood (its friction has belief 0)
-        # restarts from equal weights
-        lw = np.where(np.isnan(lw), -math.log(lw.shape[0]), lw)
-        return np.exp(lw), lw
-
-    def _filters_update(
-        self,
-        bank: FrictionBank,
-        ent: _Entries,
-        prop: _Proposal,
-        post: _Posterior,
-        inp: _StepInputs,
-    ) -> Estimate:
-        """The rest of the step with one fixed-friction filter per hypothesis
-        (friction_copies='filters'): column b of the rows is a particle filter with friction
-        b; its step evidence log sum_i W[i, b] L[i, b] updates the global friction belief
-        (Bayesian model averaging, exact for a time-invariant friction); eq. (7) on the
-        global belief; each column resamples on its own weights (common random numbers)."""
-        ps = self.particles
-        n_b = bank.n_b
-        wn, lw = self._column_weights()
-        lik = prop.incr.reshape(-1, n_b)  # (P, B)
-        with np.errstate(invalid="ignore"):
-            ev = self._lse((lw + lik).T, 1)  # (B,) log p(o_l | o_0:l-1, b)
-        belief = bank.fric[0]
-        with np.errstate(divide="ignore"):
-            log_joint = np.log(belief) + np.where(np.isfinite(ev), ev, -np.inf)
-        total = float(_logsumexp(log_joint, axis=0))
-        if not math.isfinite(total):
-            msg = (
-                f"all {ps.size} particles have zero likelihood at step {self._step}: the "
-                f"observation {inp.observation} is incompatible with the model"
-            )
-            raise ModelError(msg)
-        log_ml = total if inp.lin is not None or inp.force is not None else 0.0
-        belief_post = np.exp(log_joint - total)  # (B,)
-        ps.log_w = ps.log_w + prop.incr
-        wn, lw = self._column_weights()
-        ps.log_w = lw.reshape(-1)
-        row_w = (wn * belief_post[None, :]).reshape(-1)  # (P B,) weights of the rows
-        pair_in = (row_w @ post.pair_in)[None]  # (1, pairs)
-        fric_pair = self._pair_marginals(belief_post[None])  # (1, pairs, Kmax)
-        if self._step <= self.config.friction_hold_steps:
-            nxt = self._prior_b
-            fric_pair = self._pair_marginals(nxt[None])
-        else:
-            nxt = self._predict_friction(belief_post[None], fric_pair, pair_in)[0]
-        bank.fric = np.tile(nxt, (bank.size, 1))
-        ps.modes = post.modes_post
-        ps.q, ps.v = prop.q_new, prop.v_new
-        share = np.tile(belief_post, bank.size)  # (P B,) the belief in each row's column
-        fric_pair_rows = np.repeat(fric_pair, ps.size, axis=0)
-        self._push_history(
-            fric_pair_rows, post.p_contact * share[:, None], inp.joints, wn.reshape(-1)
-        )
-        ess = effective_sample_size(row_w)
-        resampled = self._resample_columns(wn)
-        map_w = self._column_weights()[0].reshape(-1)
-        return self._estimate(
-            w=row_w,
-            map_w=map_w,
-            q=prop.q_new,
-            v=prop.v_new,
-            marg_post=post.marg_post,
-            fric_pair=fric_pair_rows,
-            ess=ess,
-            live=float(ent.hyp.n_live.mean()),
-            log_ml=log_ml,
-            resampled=resampled,
-        )
-
-    def _resample_columns(self, wn: FloatArray) -> bool:
-        """Resample each column (fixed-friction filter) of wn (P, B) whose effective sample
-        size is below the threshold, all with the same random numbers; returns whether any
-        was."""
-        n_p, n_b = wn.shape
-        ess = 1.0 / np.sum(wn * wn, axis=0)  # (B,)
-        low = np.flatnonzero(ess < self.config.ess_threshold * n_p)
-        if low.size == 0:
-            return False
-        seed = int(self.rng.integers(2**62)) if n_b > 1 else None
-        rows = np.arange(n_p * n_b).reshape(n_p, n_b)
-        for b in low.tolist():  # a loop over friction hypotheses (B), not particles
-            rng = self.rng if seed is None else np.random.default_rng(seed)
-            rows[:, b] = self._resampler(wn[:, b], rng) * n_b + b
-        keep = self.particles.log_w.reshape(n_p, n_b).copy()
-        keep[:, low] = 0.0
-        self.particles.resample(rows.reshape(-1))
-        self.particles.log_w = keep.reshape(-1)
-        return True
 
     # ------------------------------------------------------------------------ helpers
     @staticmethod
@@ -1289,8 +1156,7 @@ class DbcSlamFilter:
         cfg = self.config
         prev_in = None
         if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per particle
-            ps = self.particles
-            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", self.fric, self.modes[..., Mode.SEPARATED])
             prev_in = prev_in.take(pi, axis=0)
         phi = contact_gap(
             kin.phi.take(pi, axis=0),
@@ -1308,7 +1174,7 @@ class DbcSlamFilter:
             phi=phi[:, None],
             vn_env=kin.vn_env.take(pi, axis=0)[:, None],
             vt_env=kin.vt_env.take(pi, axis=0)[:, None],
-            mu=self._mu_in if self.bank is None else self._mu_in.take(pi, axis=0),
+            mu=self._mu[None] if self._sub_b is None else self._mu[self._sub_b[pi]][:, None],
             dt=self.dt,
             scales=self._scales,
             groups=self._layout.obstacle,
@@ -1435,11 +1301,6 @@ class DbcSlamFilter:
 
     def friction_map(self) -> FrictionMapView:
         """The friction map including the not yet committed (within the lag) history."""
-        if self.bank is not None and self._copies == "filters":
-            return self._friction_map_view(self._column_weights()[0].reshape(-1))
-        if self.bank is not None:
-            wb, _ = normalise_log_weights(self.bank.log_w)
-            return self._friction_map_view(np.repeat(wb, self.bank.n_b))
         w, _ = normalise_log_weights(self.particles.log_w)
         return self._friction_map_view(w)
 
@@ -1456,6 +1317,7 @@ class DbcSlamFilter:
         self,
         *,
         w: FloatArray,
+        row_w: FloatArray,
         map_w: FloatArray,
         q: FloatArray,
         v: FloatArray,
@@ -1466,11 +1328,18 @@ class DbcSlamFilter:
         log_ml: float,
         resampled: bool,
     ) -> Estimate:
+        """The per-step summary: weighted moments of the rows q, v (R, nq) and mode marginals
+        marg_post (R, C, 4) under row_w (R,); friction (pairs, Kmax) from the particles'
+        fric_pair under w (P,); the friction map under map_w (P,)."""
         pose = np.zeros(3)
         pose_cov = np.zeros((3, 3))
         twist = np.zeros(3)
         twist_cov = np.zeros((3, 3))
         nq = self.nq
+        friction = np.einsum("p,pqk->qk", w, fric_pair)
+        w = row_w
+        if self._n_sub > 1:  # copies without weight may hold 0/0 marginals: keep them out
+            marg_post = np.where((w > 0.0)[:, None, None], marg_post, 0.0)
         mean_q = w @ q
         dq = q - mean_q
         if nq == 3:
@@ -1484,7 +1353,6 @@ class DbcSlamFilter:
         twist[:nq] = mean_v
         twist_cov[:nq, :nq] = (dv * w[:, None]).T @ dv
         modes = np.einsum("p,pcm->cm", w, marg_post)
-        friction = np.einsum("p,pqk->qk", w, fric_pair)
         return Estimate(
             step=self._step,
             pose=pose,
@@ -1498,6 +1366,8 @@ class DbcSlamFilter:
             live_hypotheses=live,
             log_likelihood=log_ml,
             resampled=resampled,
+            particle_poses=q,
+            particle_weights=w,
         )
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:

@@ -23,7 +23,7 @@ from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig
 from dbcslam_core.scenario import gripper_scenario
 
 C = 0  # contact: vertex 0 on the lower jaw
-PRESET = FilterConfig.preset("gripper", particles=1)
+PRESET = FilterConfig.preset("gripper", particles=1, friction_bank=False)  # all B per entry
 TIME_STEPPING = replace(PRESET, gap_closure=1.0, gap_tolerance=None)
 
 

@@ -68,7 +68,8 @@ class DiscrepancyConfig:
     (None: `runs.default_effects` that the filter can score); holdout_fraction: held-out
     tail of a single run without held-out runs;
     horizon, stride, max_starts: the rollout pictures (`rollouts.RolloutConfig`);
-    pictures: compute them.
+    pictures: compute them; filter_overrides: `FilterConfig` fields of the scoring filter
+    (`scoring.ScoreConfig.filter_overrides`).
     """
 
     particles: int = 300
@@ -84,6 +85,7 @@ class DiscrepancyConfig:
     stride: int = 2
     max_starts: int = 150
     pictures: bool = True
+    filter_overrides: tuple[tuple[str, object], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -359,7 +361,10 @@ def analyse(
     cfg = cfg or DiscrepancyConfig()
     say = progress or (lambda s: None)
     started = time.monotonic()
-    scorer = Scorer(ScoreConfig(particles=cfg.particles, seed=cfg.seed), say)
+    scorer = Scorer(
+        ScoreConfig(particles=cfg.particles, seed=cfg.seed, filter_overrides=cfg.filter_overrides),
+        say,
+    )
     prep = prepare(runs, heldout_runs, cfg, scorer, say)
     fits = fit_all(prep, scorer, say, started)
     cands = compare(prep, fits, scorer, cfg)

@@ -5,7 +5,8 @@ A `Hypothesis` is the nominal model plus at most one effect of the contract voca
 it (what the filter session does with a model file):
 
 * dynamic effects (viscous_damping, mass_scale, input_gain, support_friction,
-  support_pressure) are passed to the filter as `extensions=` (`PlanarModel` applies them);
+  support_pressure, support_concentration) are passed to the filter as `extensions=`
+  (`PlanarModel` applies them);
 * friction_scale multiplies the scenario's friction candidates (the filter integrates
   friction over its candidates, it does not apply the extension's mu field);
 * sensor_bias is subtracted from the observed poses; sensor_delay (observations lag the
@@ -52,6 +53,7 @@ FILTER_EFFECTS: frozenset[str] = frozenset(
         "sensor_bias",
         "support_friction",
         "support_pressure",
+        "support_concentration",
     }
 )
 """Effects the filter-based score can evaluate (see module docstring)."""
@@ -85,7 +87,9 @@ class ParamSpace:
         return lo_hit or hi_hit
 
 
-def effect_spaces(scenario: Scenario, effect: str) -> tuple[ParamSpace, ...]:
+def effect_spaces(  # noqa: PLR0911
+    scenario: Scenario, effect: str
+) -> tuple[ParamSpace, ...]:
     """The parameter search spaces of `effect` in `scenario` (SI units).
 
     Factors search [0.4, 2.5] on a log grid; damping up to 8 m / s (N s/m); delay up to
@@ -105,6 +109,8 @@ def effect_spaces(scenario: Scenario, effect: str) -> tuple[ParamSpace, ...]:
         return (ParamSpace("mu", 0.0, 0.8, False, 0.0, (0.05, 0.12, 0.25, 0.45)),)
     if effect == "support_pressure":
         return (ParamSpace("rim_fraction", 0.0, 1.0, False, 0.0, (0.25, 0.5, 1.0)),)
+    if effect == "support_concentration":
+        return (ParamSpace("centre_fraction", 0.0, 0.95, False, 0.0, (0.2, 0.4, 0.6, 0.8)),)
     if effect == "sensor_bias":
         pos = (-0.035, -0.02, -0.01, 0.01, 0.02, 0.035)
         out = [
@@ -185,7 +191,8 @@ def effect_size(  # noqa: PLR0911
 
     factors: |log f| / log 1.1; viscous_damping: b over 0.2 N s/m per kg; sensor_delay:
     seconds / (dt / 2); sensor_bias: position over half the position noise std (yaw over
-    half the yaw noise std); support_friction: mu / 0.02; support_pressure: rim / 0.1.
+    half the yaw noise std); support_friction: mu / 0.02; support_pressure: rim / 0.1;
+    support_concentration: centre_fraction / 0.1.
     """
     if effect in ("friction_scale", "mass_scale", "input_gain"):
         return abs(math.log(params["factor"])) / math.log(1.1)
@@ -201,6 +208,8 @@ def effect_size(  # noqa: PLR0911
         return params["mu"] / 0.02
     if effect == "support_pressure":
         return params["rim_fraction"] / 0.1
+    if effect == "support_concentration":
+        return params["centre_fraction"] / 0.1
     return 0.0
 
 
