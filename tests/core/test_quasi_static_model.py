@@ -203,3 +203,20 @@ def test_support_concentration_is_a_scorable_push_effect() -> None:
     )
     with pytest.raises(ModelError, match="centre_fraction"):
         ModelExtension.make("support_concentration", centre_fraction=1.0)
+
+
+@pytest.mark.parametrize("model", ["dynamic", "quasi_static"])
+def test_support_friction_effect_reaches_the_filter_with_a_support_pair(model: str) -> None:
+    """With an estimated support pair the filter's support coefficient is that pair's
+    candidates: the effect must replace them (it used to be ignored: nominal scores)."""
+    from dbcslam_core.discrepancy.effects import Hypothesis
+    from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig
+
+    sc = _scenario(model, support_mu=None, support_pair="surface")
+    assert sc.friction.pairs == ("pusher", "surface")
+    sc2, exts, _, _ = Hypothesis.make("support_friction", {"mu": 0.7}).filter_setup(sc)
+    i = sc2.friction.pair_index("surface")
+    assert sc2.friction.candidates[i] == (0.7,) and sc2.friction.prior[i] == (1.0,)
+    assert sc2.friction.candidates[0] == sc.friction.candidates[0]
+    filt = DbcSlamFilter(sc2, FilterConfig.preset("push", particles=4), extensions=exts)
+    np.testing.assert_array_equal(filt._mu_surface, 0.7)

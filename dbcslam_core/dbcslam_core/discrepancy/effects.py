@@ -8,7 +8,10 @@ it (what the filter session does with a model file):
   support_pressure, support_concentration) are passed to the filter as `extensions=`
   (`PlanarModel` applies them);
 * friction_scale multiplies the scenario's friction candidates (the filter integrates
-  friction over its candidates, it does not apply the extension's mu field);
+  friction over its candidates, it does not apply the extension's mu field); likewise
+  support_friction on a scenario whose support coefficient is an estimated pair
+  (``surface.pair``) replaces that pair's candidates by its single value (the filter's
+  support coefficient per friction hypothesis comes from the candidates);
 * sensor_bias is subtracted from the observed poses; sensor_delay (observations lag the
   state by `seconds`) drives the filter with the inputs and joints `seconds` earlier
   (linear interpolation), so that observation k is of the state the delayed inputs
@@ -172,6 +175,17 @@ class Hypothesis:
             bias = np.asarray([p["x"], p["y"], p["yaw"]], dtype=np.float64)
         elif self.effect == "sensor_delay":
             delay = p["seconds"]
+        elif self.effect == "support_friction" and sc.surface.pair is not None:
+            # the filter's support coefficient is its support pair's candidates (one per
+            # friction hypothesis): the effect replaces them by the single value
+            fr = sc.friction
+            i = fr.pair_index(sc.surface.pair)
+            cands = tuple((p["mu"],) if j == i else c for j, c in enumerate(fr.candidates))
+            prior = tuple((1.0,) if j == i else q for j, q in enumerate(fr.prior))
+            sc = dataclasses.replace(
+                sc, friction=dataclasses.replace(fr, candidates=cands, prior=prior)
+            )
+            exts = (ModelExtension.make("support_friction", mu=p["mu"]),)
         elif self.effect != "none":
             ext = self.extension()
             assert ext is not None
