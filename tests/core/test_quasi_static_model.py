@@ -4,6 +4,7 @@ pusher-slider mechanics of `dbcslam_core.quasi_static` (motion cone, limit surfa
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -33,8 +34,8 @@ PUSHES = [
 ]
 
 
-def _scenario(model: str | None = "quasi_static", **kw: object) -> Scenario:
-    args: dict[str, object] = {
+def _scenario(model: str | None = "quasi_static", **kw: Any) -> Scenario:
+    args: dict[str, Any] = {
         "mass": MASS,
         "support_mu": MU_S,
         "pusher_radius": RADIUS,
@@ -42,7 +43,7 @@ def _scenario(model: str | None = "quasi_static", **kw: object) -> Scenario:
         "model": model,
     }
     args.update(kw)
-    return push_scenario(SQUARE.tolist(), **args)  # type: ignore[arg-type]
+    return push_scenario(SQUARE.tolist(), **args)
 
 
 def _rot(yaw: float) -> np.ndarray:
