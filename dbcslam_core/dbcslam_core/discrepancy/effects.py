@@ -96,7 +96,9 @@ def effect_spaces(  # noqa: PLR0911
     """The parameter search spaces of `effect` in `scenario` (SI units).
 
     Factors search [0.4, 2.5] on a log grid; damping up to 8 m / s (N s/m); delay up to
-    0.15 s; support friction up to 0.8; sensor bias +-5 cm (yaw +-0.1 rad).
+    0.15 s; support friction up to 0.8; support_concentration up to 0.95; sensor bias +-5 cm
+    (yaw +-0.1 rad), its grid in steps of the observation noise std (position: +-1, 2, 3.5
+    stds, at most +-3.5 cm; yaw: +-2, 4 stds, at most +-0.05 rad).
     """
     m = float(scenario.body.mass)
     fac = (0.6, 0.8, 1.25, 1.6, 2.0)
@@ -115,13 +117,18 @@ def effect_spaces(  # noqa: PLR0911
     if effect == "support_concentration":
         return (ParamSpace("centre_fraction", 0.0, 0.95, False, 0.0, (0.2, 0.4, 0.6, 0.8)),)
     if effect == "sensor_bias":
-        pos = (-0.035, -0.02, -0.01, 0.01, 0.02, 0.035)
+        # grid steps of the order of the observation noise (1 cm: +-1, 2, 3.5 cm): a bias of
+        # many noise stds is far outside what a filter scores, and finer ones fall between
+        s = float(np.clip(scenario.noise.position, 1e-4, 0.01))
+        pos = tuple(s * g for g in (-3.5, -2.0, -1.0, 1.0, 2.0, 3.5))
         out = [
             ParamSpace("y", -0.05, 0.05, False, 0.0, pos),
             ParamSpace("x", -0.05, 0.05, False, 0.0, pos),
         ]
         if scenario.nq == 3:
-            out.append(ParamSpace("yaw", -0.1, 0.1, False, 0.0, (-0.05, 0.05)))
+            ys = float(np.clip(scenario.noise.yaw, 1e-3, 0.0125))
+            yaw = tuple(ys * g for g in (-4.0, -2.0, 2.0, 4.0))
+            out.append(ParamSpace("yaw", -0.1, 0.1, False, 0.0, yaw))
         return tuple(out)
     msg = (
         f"effect {effect!r} cannot be scored with the filter; scorable effects: "
