@@ -111,7 +111,14 @@ def effect_spaces(  # noqa: PLR0911
     if effect == "sensor_delay":
         return (ParamSpace("seconds", 0.0, 0.15, False, 0.0, (0.02, 0.05, 0.09, 0.13)),)
     if effect == "support_friction":
-        return (ParamSpace("mu", 0.0, 0.8, False, 0.0, (0.05, 0.12, 0.25, 0.45)),)
+        # with an estimated support pair the nominal model has support friction (its
+        # candidates): the grid is walked outwards from their prior mean, not from 0
+        mu0 = 0.0
+        if scenario.surface.pair is not None:
+            i = scenario.friction.pair_index(scenario.surface.pair)
+            mu0 = float(np.dot(scenario.friction.candidates[i], scenario.friction.prior[i]))
+        grid = tuple(g for g in (0.05, 0.12, 0.25, 0.45) if abs(g - mu0) > 0.02)
+        return (ParamSpace("mu", 0.0, 0.8, False, mu0, grid),)
     if effect == "support_pressure":
         return (ParamSpace("rim_fraction", 0.0, 1.0, False, 0.0, (0.25, 0.5, 1.0)),)
     if effect == "support_concentration":
