@@ -4,6 +4,7 @@ pusher-slider mechanics of `dbcslam_core.quasi_static` (motion cone, limit surfa
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -33,8 +34,8 @@ PUSHES = [
 ]
 
 
-def _scenario(model: str | None = "quasi_static", **kw: object) -> Scenario:
-    args: dict[str, object] = {
+def _scenario(model: str | None = "quasi_static", **kw: Any) -> Scenario:
+    args: dict[str, Any] = {
         "mass": MASS,
         "support_mu": MU_S,
         "pusher_radius": RADIUS,
@@ -42,7 +43,7 @@ def _scenario(model: str | None = "quasi_static", **kw: object) -> Scenario:
         "model": model,
     }
     args.update(kw)
-    return push_scenario(SQUARE.tolist(), **args)  # type: ignore[arg-type]
+    return push_scenario(SQUARE.tolist(), **args)
 
 
 def _rot(yaw: float) -> np.ndarray:
@@ -203,3 +204,20 @@ def test_support_concentration_is_a_scorable_push_effect() -> None:
     )
     with pytest.raises(ModelError, match="centre_fraction"):
         ModelExtension.make("support_concentration", centre_fraction=1.0)
+
+
+@pytest.mark.parametrize("model", ["dynamic", "quasi_static"])
+def test_support_friction_effect_reaches_the_filter_with_a_support_pair(model: str) -> None:
+    """With an estimated support pair the filter's support coefficient is that pair's
+    candidates: the effect must replace them (it used to be ignored: nominal scores)."""
+    from dbcslam_core.discrepancy.effects import Hypothesis
+    from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig
+
+    sc = _scenario(model, support_mu=None, support_pair="surface")
+    assert sc.friction.pairs == ("pusher", "surface")
+    sc2, exts, _, _ = Hypothesis.make("support_friction", {"mu": 0.7}).filter_setup(sc)
+    i = sc2.friction.pair_index("surface")
+    assert sc2.friction.candidates[i] == (0.7,) and sc2.friction.prior[i] == (1.0,)
+    assert sc2.friction.candidates[0] == sc.friction.candidates[0]
+    filt = DbcSlamFilter(sc2, FilterConfig.preset("push", particles=4), extensions=exts)
+    np.testing.assert_array_equal(filt._mu_surface, 0.7)

@@ -114,7 +114,8 @@ class EvalOptions:
     surface default here is :data:`SURFACE_CANDIDATES`). reuse: re-evaluate
     the replays already in ``work`` (a previous run's) instead of importing and replaying.
     push_model: the scenarios' ``surface.model`` (None: the importer's default,
-    :data:`dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL`).
+    :data:`dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL`). every: evaluate every N-th push file
+    (sorted by name; the alignment is still fitted on every file of the shape's directory).
     """
 
     data: Path = DEFAULT_DATA
@@ -132,6 +133,7 @@ class EvalOptions:
     surface_candidates: tuple[float, ...] | None = SURFACE_CANDIDATES
     reuse: bool = False
     push_model: str | None = None
+    every: int = 1
 
 
 def resolve_data(data: str | Path) -> list[Path]:
@@ -586,10 +588,13 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         UsageError: bad options or no data.
         BagError: a push file cannot be imported or replayed.
     """
-    if opts.particles < 1 or opts.jobs < 1:
-        msg = f"particles and jobs must be >= 1, got {opts.particles} and {opts.jobs}"
+    if opts.particles < 1 or opts.jobs < 1 or opts.every < 1:
+        msg = (
+            f"particles, jobs and every must be >= 1, got {opts.particles}, {opts.jobs} and "
+            f"{opts.every}"
+        )
         raise UsageError(msg)
-    files = resolve_data(opts.data)
+    files = resolve_data(opts.data)[:: opts.every]
     started = time.perf_counter()
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if opts.work is None:
@@ -628,6 +633,8 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
                 "command": command,
                 "data": _portable(opts.data),
                 "pushes": len(pushes),
+                "every": opts.every,
+                "push_model": opts.push_model,
                 "particles": int(params.get("particles", opts.particles)),
                 "jobs": opts.jobs,
                 "reused_work": str(work) if opts.reuse else None,
@@ -753,6 +760,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument(
+        "--every", type=int, default=1, help="evaluate every N-th push file (1: all)"
+    )
+    parser.add_argument(
         "--push-model",
         choices=("dynamic", "quasi_static"),
         default=None,
@@ -796,6 +806,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params=tuple(extra),
         reuse=args.reuse,
         push_model=args.push_model,
+        every=args.every,
         pusher_candidates=None
         if args.pusher_candidates is None
         else tuple(args.pusher_candidates),
