@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-PKGS   := dbcslam_core dbcslam_ros sim_publisher
+PKGS   := dbcslam_core dbcslam_ros sim_publisher dbcslam_ros/research
 
 .PHONY: venv test lint typecheck pytest demo experiments bench science clean
 
@@ -33,17 +33,17 @@ demo: venv
 	$(BIN)/dbcslam demo
 
 experiments: venv
-	$(BIN)/python -m dbcslam_ros.experiments
-	$(BIN)/python -m dbcslam_ros.experiments_sim
-	$(BIN)/python -m dbcslam_ros.readme_results
+	$(BIN)/python -m dbcslam_research.experiments
+	$(BIN)/python -m dbcslam_research.experiments_sim
+	$(BIN)/python -m dbcslam_research.readme_results
 
 science: venv
-	$(BIN)/python -m dbcslam_ros.science --out out/science
+	$(BIN)/python -m dbcslam_research.science --out dbcslam_ros/research/results/science
 
 bench: venv
-	$(BIN)/python -m dbcslam_ros.bench
-	$(BIN)/python -m dbcslam_ros.bench_live --offline
-	$(BIN)/python -m dbcslam_ros.readme_results
+	$(BIN)/python -m dbcslam_research.bench
+	$(BIN)/python -m dbcslam_research.bench_live --offline
+	$(BIN)/python -m dbcslam_research.readme_results
 
 clean:
 	rm -rf $(VENV) build ros_ws/build ros_ws/install ros_ws/log .mypy_cache .ruff_cache .pytest_cache

@@ -9,7 +9,8 @@ PACKAGE = "dbcslam_ros"
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "tests"]),
+    # only the ROS package: research/ (dbcslam_research) is a package of its own
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
     package_data={PACKAGE: ["config/*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -35,9 +36,9 @@ setup(
     entry_points={
         "console_scripts": [
             "dbcslam = dbcslam_ros.cli:main",
-            "filter_node = dbcslam_ros.filter_node:main",
-            "talker = dbcslam_ros.demo_nodes:talker_main",
-            "listener = dbcslam_ros.demo_nodes:listener_main",
+            "filter_node = dbcslam_ros.node.filter_node:main",
+            "talker = dbcslam_ros.node.demo_nodes:talker_main",
+            "listener = dbcslam_ros.node.demo_nodes:listener_main",
         ],
     },
 )

@@ -23,5 +23,10 @@ setup(
     description="pybullet simulator node for DBC-SLAM scenarios.",
     license="Apache-2.0",
     python_requires=">=3.11",
-    entry_points={"console_scripts": ["sim_node = sim_publisher.node:main"]},
+    entry_points={
+        "console_scripts": ["sim_node = sim_publisher.node:main"],
+        # `dbcslam sim`: the dbcslam command line finds its commands in this group, so
+        # dbcslam_ros never imports the simulator
+        "dbcslam.commands": ["sim = sim_publisher.command:COMMAND"],
+    },
 )

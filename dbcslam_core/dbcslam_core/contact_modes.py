@@ -172,129 +172,148 @@ def solve_reduced(
     numba imports) or `numpy` (batched array operations; the reference and the fallback).
     None = `DEFAULT_BACKEND`. Both give the same results to round-off.
     """
-    sc = scales or ViolationScales()
-    md = np.asarray(modes, dtype=np.int64)
-    vf = np.asarray(v_free, dtype=np.float64)
-    im = np.asarray(inv_mass, dtype=np.float64)
-    jn_a = np.asarray(jn, dtype=np.float64)
-    jt_a = np.asarray(jt, dtype=np.float64)
-    phi_a = np.asarray(phi, dtype=np.float64)
-    vne = np.asarray(vn_env, dtype=np.float64)
-    vte = np.asarray(vt_env, dtype=np.float64)
-    mu_a = np.asarray(mu, dtype=np.float64)
-    ms = None if mass is None else np.asarray(mass, dtype=np.float64)
-    n_c = md.shape[-1]
-    nv = vf.shape[-1]
-    # Everything except mu ("geometry") is solved once per geometry element; mu only enters
-    # the assignments with sliding contacts, which are solved per (geometry, mu) element.
-    lead_g = np.broadcast_shapes(
-        md.shape[:-1],
-        vf.shape[:-1],
-        im.shape[:-1],
-        jn_a.shape[:-2],
-        jt_a.shape[:-2],
-        phi_a.shape[:-1],
-        vne.shape[:-1],
-        vte.shape[:-1],
-        () if ms is None else ms.shape[:-2],
-    )
-    lead = np.broadcast_shapes(lead_g, mu_a.shape[:-1])
-    n_m = math.prod(lead)
-    n_g = math.prod(lead_g)
-
-    def gflat(x: FloatArray, tail: tuple[int, ...]) -> FloatArray:
-        if x.shape[: x.ndim - len(tail)] != lead_g:
-            x = np.broadcast_to(x, (*lead_g, *tail))
-        return x.reshape(n_g, *tail)
-
-    if _use_compiled(backend):
-        return _solve_compiled(
-            md,
-            vf,
-            im=im,
-            jn_a=jn_a,
-            jt_a=jt_a,
-            phi_a=phi_a,
-            vne=vne,
-            vte=vte,
-            mu_a=mu_a,
-            ms=ms,
-            lead=lead,
-            lead_g=lead_g,
-            dt=dt,
-            sc=sc,
-            eps_rel=eps_rel,
-            groups=groups,
-            sensitivity=impulse_sensitivity,
-        )
-    # Free-motion contact velocities (independent of the assignment).
-    an = (jn_a @ vf[..., None])[..., 0] - vne + phi_a / dt
-    at = (jt_a @ vf[..., None])[..., 0] - vte
-    mdg = md if md.shape[:-1] == lead_g else np.broadcast_to(md, (*lead_g, n_c))
-    mdg = mdg.reshape(n_g, n_c)
-    # constraint rows [Jn; Jt] of every geometry element, flattened, plus one zero row
-    n_rows = n_g * 2 * n_c
-    g_ext = np.empty((n_rows + 1, nv))
-    w_all = g_ext[:n_rows].reshape(n_g, 2 * n_c, nv)
-    w_all[:, :n_c] = gflat(jn_a, (n_c, nv))
-    w_all[:, n_c:] = gflat(jt_a, (n_c, nv))
-    g_ext[n_rows] = 0.0
-    a_ext = np.empty(n_rows + 1)
-    a_all = a_ext[:n_rows].reshape(n_g, 2 * n_c)
-    a_all[:, :n_c] = gflat(an, (n_c,))
-    a_all[:, n_c:] = gflat(at, (n_c,))
-    a_ext[n_rows] = 0.0
-    # rows of M^-1 W^T (same layout, zero last row)
-    if ms is not None:
-        mw_ext = np.zeros_like(g_ext)
-        mw_ext[:n_rows] = np.swapaxes(
-            np.linalg.solve(gflat(ms, (nv, nv)), np.swapaxes(w_all, 1, 2)), 1, 2
-        ).reshape(n_rows, nv)
-    elif im.ndim == 1:
-        mw_ext = g_ext * im
-    else:
-        mw_ext = np.zeros_like(g_ext)
-        mw_ext[:n_rows] = (w_all * gflat(im, (nv,))[:, None, :]).reshape(n_rows, nv)
-    gi = np.arange(n_g)
-    if lead != lead_g:
-        gi = np.broadcast_to(gi.reshape((1,) * (len(lead) - len(lead_g)) + lead_g), lead).reshape(
-            n_m
-        )
-    sol = _solve_assignments(
-        mdg,
-        g_ext,
-        mw_ext,
-        a_ext,
-        gi,
-        mu_rows=_mu_rows(mu_a, lead, n_c),
+    prob = _ReducedProblem.of(
+        modes,
+        v_free,
+        inv_mass=inv_mass,
+        jn=jn,
+        jt=jt,
+        phi=phi,
+        vn_env=vn_env,
+        vt_env=vt_env,
+        mu=mu,
+        mass=mass,
+        dt=dt,
+        scales=scales or ViolationScales(),
         eps_rel=eps_rel,
-        sensitivity=impulse_sensitivity,
+        groups=groups,
+    )
+    if _use_compiled(backend):
+        return _solve_compiled(prob, sensitivity=impulse_sensitivity)
+    return _solve_numpy(prob, sensitivity=impulse_sensitivity)
+
+
+@dataclass(frozen=True)
+class _ReducedProblem:
+    """The inputs of `solve_reduced` as float arrays with their broadcast shapes: lead_g
+    over everything but mu (the "geometry", solved once per element when no contact
+    slides), lead over all (one solution per element)."""
+
+    md: IntArray
+    vf: FloatArray
+    im: FloatArray
+    jn: FloatArray
+    jt: FloatArray
+    phi: FloatArray
+    vne: FloatArray
+    vte: FloatArray
+    mu: FloatArray
+    ms: FloatArray | None
+    dt: float
+    sc: ViolationScales
+    eps_rel: float
+    groups: npt.ArrayLike | None
+    lead_g: tuple[int, ...]
+    lead: tuple[int, ...]
+
+    @classmethod
+    def of(
+        cls,
+        modes: npt.ArrayLike,
+        v_free: npt.ArrayLike,
+        *,
+        inv_mass: npt.ArrayLike,
+        jn: npt.ArrayLike,
+        jt: npt.ArrayLike,
+        phi: npt.ArrayLike,
+        vn_env: npt.ArrayLike,
+        vt_env: npt.ArrayLike,
+        mu: npt.ArrayLike,
+        mass: npt.ArrayLike | None,
+        dt: float,
+        scales: ViolationScales,
+        eps_rel: float,
+        groups: npt.ArrayLike | None,
+    ) -> _ReducedProblem:
+        md = np.asarray(modes, dtype=np.int64)
+        vf = np.asarray(v_free, dtype=np.float64)
+        im = np.asarray(inv_mass, dtype=np.float64)
+        jn_a = np.asarray(jn, dtype=np.float64)
+        jt_a = np.asarray(jt, dtype=np.float64)
+        phi_a = np.asarray(phi, dtype=np.float64)
+        vne = np.asarray(vn_env, dtype=np.float64)
+        vte = np.asarray(vt_env, dtype=np.float64)
+        mu_a = np.asarray(mu, dtype=np.float64)
+        ms = None if mass is None else np.asarray(mass, dtype=np.float64)
+        lead_g = np.broadcast_shapes(
+            md.shape[:-1],
+            vf.shape[:-1],
+            im.shape[:-1],
+            jn_a.shape[:-2],
+            jt_a.shape[:-2],
+            phi_a.shape[:-1],
+            vne.shape[:-1],
+            vte.shape[:-1],
+            () if ms is None else ms.shape[:-2],
+        )
+        lead = np.broadcast_shapes(lead_g, mu_a.shape[:-1])
+        return cls(
+            md, vf, im, jn_a, jt_a, phi_a, vne, vte, mu_a, ms, float(dt), scales, eps_rel,
+            groups, lead_g, lead,
+        )  # fmt: skip
+
+    @property
+    def n_c(self) -> int:
+        return int(self.md.shape[-1])
+
+    @property
+    def nv(self) -> int:
+        return int(self.vf.shape[-1])
+
+    @property
+    def n_g(self) -> int:
+        return math.prod(self.lead_g)
+
+    def gflat(self, x: npt.NDArray[Any], tail: tuple[int, ...]) -> npt.NDArray[Any]:
+        """x broadcast to the geometry elements, (G, *tail)."""
+        if x.shape[: x.ndim - len(tail)] != self.lead_g:
+            x = np.broadcast_to(x, (*self.lead_g, *tail))
+        return x.reshape(self.n_g, *tail)
+
+    def geometry_index(self) -> IntArray:
+        """The geometry element of each lead element (n_m,)."""
+        gi = np.arange(self.n_g)
+        if self.lead != self.lead_g:
+            pad = (1,) * (len(self.lead) - len(self.lead_g))
+            gi = np.broadcast_to(gi.reshape(pad + self.lead_g), self.lead).reshape(-1)
+        return gi
+
+
+def _solve_numpy(prob: _ReducedProblem, *, sensitivity: bool) -> ReducedSolution:
+    """`solve_reduced` with batched numpy operations (the reference path)."""
+    n_c, nv, lead = prob.n_c, prob.nv, prob.lead
+    rows = _constraint_rows(prob)
+    sol = _solve_assignments(
+        rows.modes,
+        rows.g_ext,
+        rows.mw_ext,
+        rows.a_ext,
+        prob.geometry_index(),
+        mu_rows=_mu_rows(prob.mu, lead, n_c),
+        eps_rel=prob.eps_rel,
+        sensitivity=sensitivity,
     )
     ln = sol[0].reshape(*lead, n_c)
     lt = sol[1].reshape(*lead, n_c)
-    dv = sol[2].reshape(*lead, nv)
-    response = sol[3].reshape(*lead, nv, nv)
-    imp_resp = sol[4]
-    v_next = vf + dv
-    # [Jn; Jt] v' of every lead element in one batched product (w_all: geometry layout)
-    lead_gp = (1,) * (len(lead) - len(lead_g)) + lead_g
-    j = len(lead_gp)
-    while j and lead_gp[j - 1] == 1:
-        j -= 1
-    if lead_gp[:j] == lead[:j] and len(lead) == len(lead_gp):
-        # geometry = leading axes: (G, rest, nv) @ (G, nv, 2C), no broadcasting
-        vv = v_next if v_next.shape == (*lead, nv) else np.broadcast_to(v_next, (*lead, nv))
-        vv = vv.reshape(n_g, n_m // n_g, nv)
-        wv = (vv @ np.swapaxes(w_all, 1, 2)).reshape(*lead, 2 * n_c)
-    else:
-        w_lead = w_all.reshape((*lead_gp, 2 * n_c, nv))
-        wv = (w_lead @ v_next[..., None])[..., 0]  # (*lead, 2C)
-    gap_rate = wv[..., :n_c] - vne + phi_a / dt
-    vt = wv[..., n_c:] - vte
-    onehot = None if groups is None else _onehot_of(groups)
-    score = _violation_score(md, ln, lt, gap_rate, vt, mu_a=mu_a, nv=nv, sc=sc, onehot=onehot)
+    v_next = prob.vf + sol[2].reshape(*lead, nv)
+    gap_rate, vt = _contact_rates(prob, rows.w_all, v_next)
+    onehot = None if prob.groups is None else _onehot_of(prob.groups)
+    score = _violation_score(
+        prob.md, ln, lt, gap_rate, vt, mu_a=prob.mu, nv=nv, sc=prob.sc, onehot=onehot
+    )
     if score.shape != lead:
         score = np.broadcast_to(score, lead)
+    imp_resp = sol[4]
     return ReducedSolution(
         v_next=np.asarray(v_next, dtype=np.float64),
         ln=ln,
@@ -302,11 +321,78 @@ def solve_reduced(
         gap_rate=np.asarray(gap_rate, dtype=np.float64),
         vt=np.asarray(vt, dtype=np.float64),
         score=np.asarray(score, dtype=np.float64),
-        response=np.asarray(response, dtype=np.float64),
+        response=np.asarray(sol[3].reshape(*lead, nv, nv), dtype=np.float64),
         impulse_response=None
         if imp_resp is None
         else np.asarray(imp_resp.reshape(*lead, 2, n_c, nv), dtype=np.float64),
     )
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """Per geometry element: modes (G, C); the constraint rows [Jn; Jt] flattened with a
+    final zero row g_ext (G 2C + 1, nv) and as w_all (G, 2C, nv); the rows of M^-1 W^T
+    mw_ext (same layout); the free gap rates / slips a_ext (G 2C + 1,)."""
+
+    modes: IntArray
+    g_ext: FloatArray
+    w_all: FloatArray
+    mw_ext: FloatArray
+    a_ext: FloatArray
+
+
+def _constraint_rows(prob: _ReducedProblem) -> _Rows:
+    """The constraint rows, their M^-1 images and the free-motion rates of every geometry
+    element (independent of the assignment)."""
+    n_c, nv, n_g, gflat = prob.n_c, prob.nv, prob.n_g, prob.gflat
+    an = (prob.jn @ prob.vf[..., None])[..., 0] - prob.vne + prob.phi / prob.dt
+    at = (prob.jt @ prob.vf[..., None])[..., 0] - prob.vte
+    md = prob.md
+    mdg = md if md.shape[:-1] == prob.lead_g else np.broadcast_to(md, (*prob.lead_g, n_c))
+    n_rows = n_g * 2 * n_c
+    g_ext = np.empty((n_rows + 1, nv))
+    w_all = g_ext[:n_rows].reshape(n_g, 2 * n_c, nv)
+    w_all[:, :n_c] = gflat(prob.jn, (n_c, nv))
+    w_all[:, n_c:] = gflat(prob.jt, (n_c, nv))
+    g_ext[n_rows] = 0.0
+    a_ext = np.empty(n_rows + 1)
+    a_all = a_ext[:n_rows].reshape(n_g, 2 * n_c)
+    a_all[:, :n_c] = gflat(an, (n_c,))
+    a_all[:, n_c:] = gflat(at, (n_c,))
+    a_ext[n_rows] = 0.0
+    if prob.ms is not None:  # rows of M^-1 W^T (same layout, zero last row)
+        mw_ext = np.zeros_like(g_ext)
+        mw_ext[:n_rows] = np.swapaxes(
+            np.linalg.solve(gflat(prob.ms, (nv, nv)), np.swapaxes(w_all, 1, 2)), 1, 2
+        ).reshape(n_rows, nv)
+    elif prob.im.ndim == 1:
+        mw_ext = g_ext * prob.im
+    else:
+        mw_ext = np.zeros_like(g_ext)
+        mw_ext[:n_rows] = (w_all * gflat(prob.im, (nv,))[:, None, :]).reshape(n_rows, nv)
+    return _Rows(mdg.reshape(n_g, n_c), g_ext, w_all, mw_ext, a_ext)
+
+
+def _contact_rates(
+    prob: _ReducedProblem, w_all: FloatArray, v_next: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Gap rates and slips (*lead, C) after the step: [Jn; Jt] v' of every lead element in
+    one batched product (w_all in the geometry layout)."""
+    n_c, nv, lead, lead_g = prob.n_c, prob.nv, prob.lead, prob.lead_g
+    n_m = math.prod(lead)
+    lead_gp = (1,) * (len(lead) - len(lead_g)) + lead_g
+    j = len(lead_gp)
+    while j and lead_gp[j - 1] == 1:
+        j -= 1
+    if lead_gp[:j] == lead[:j] and len(lead) == len(lead_gp):
+        # geometry = leading axes: (G, rest, nv) @ (G, nv, 2C), no broadcasting
+        vv = v_next if v_next.shape == (*lead, nv) else np.broadcast_to(v_next, (*lead, nv))
+        vv = vv.reshape(prob.n_g, n_m // prob.n_g, nv)
+        wv = (vv @ np.swapaxes(w_all, 1, 2)).reshape(*lead, 2 * n_c)
+    else:
+        w_lead = w_all.reshape((*lead_gp, 2 * n_c, nv))
+        wv = (w_lead @ v_next[..., None])[..., 0]  # (*lead, 2C)
+    return wv[..., :n_c] - prob.vne + prob.phi / prob.dt, wv[..., n_c:] - prob.vte
 
 
 REDUCED_BACKENDS: dict[str, str] = {
@@ -327,63 +413,38 @@ def _use_compiled(backend: str | None) -> bool:
     return name == "compiled"
 
 
-def _solve_compiled(
-    md: IntArray,
-    vf: FloatArray,
-    *,
-    im: FloatArray,
-    jn_a: FloatArray,
-    jt_a: FloatArray,
-    phi_a: FloatArray,
-    vne: FloatArray,
-    vte: FloatArray,
-    mu_a: FloatArray,
-    ms: FloatArray | None,
-    lead: tuple[int, ...],
-    lead_g: tuple[int, ...],
-    dt: float,
-    sc: ViolationScales,
-    eps_rel: float,
-    groups: npt.ArrayLike | None,
-    sensitivity: bool,
-) -> ReducedSolution:
+def _solve_compiled(prob: _ReducedProblem, *, sensitivity: bool) -> ReducedSolution:
     """`solve_reduced` through the compiled kernel: geometry elements flattened to (G, ...)
     contiguous arrays, lead elements to (geometry index, mu row) pairs."""
-    n_c = md.shape[-1]
-    nv = vf.shape[-1]
-    n_g = math.prod(lead_g)
+    n_c, nv, lead = prob.n_c, prob.nv, prob.lead
 
     def gflat(x: npt.NDArray[Any], tail: tuple[int, ...]) -> npt.NDArray[Any]:
-        if x.shape[: x.ndim - len(tail)] != lead_g or x.shape[x.ndim - len(tail) :] != tail:
-            x = np.broadcast_to(x, (*lead_g, *tail))
-        return np.ascontiguousarray(x.reshape(n_g, *tail))
+        return np.ascontiguousarray(prob.gflat(x, tail))
 
-    gi = np.arange(n_g, dtype=np.int64)
-    if lead != lead_g:
-        pad = (1,) * (len(lead) - len(lead_g))
-        gi = np.ascontiguousarray(np.broadcast_to(gi.reshape(pad + lead_g), lead).reshape(-1))
-    mu_u, ui = _mu_rows(mu_a, lead, n_c)
+    gi = np.ascontiguousarray(prob.geometry_index(), dtype=np.int64)
+    groups = prob.groups
+    mu_u, ui = _mu_rows(prob.mu, lead, n_c)
     if groups is None:
         group = np.arange(n_c, dtype=np.int64)
     else:
         group = np.unique(np.asarray(groups, dtype=np.int64).reshape(-1), return_inverse=True)[1]
     out, n_bad = kernels.reduced_dynamics(
-        gflat(md, (n_c,)),
-        gflat(vf, (nv,)),
-        jn=gflat(jn_a, (n_c, nv)),
-        jt=gflat(jt_a, (n_c, nv)),
-        phi=gflat(phi_a, (n_c,)),
-        vne=gflat(vne, (n_c,)),
-        vte=gflat(vte, (n_c,)),
-        minv=gflat(im, (nv,)),
-        mass=None if ms is None else gflat(ms, (nv, nv)),
+        gflat(prob.md, (n_c,)),
+        gflat(prob.vf, (nv,)),
+        jn=gflat(prob.jn, (n_c, nv)),
+        jt=gflat(prob.jt, (n_c, nv)),
+        phi=gflat(prob.phi, (n_c,)),
+        vne=gflat(prob.vne, (n_c,)),
+        vte=gflat(prob.vte, (n_c,)),
+        minv=gflat(prob.im, (nv,)),
+        mass=None if prob.ms is None else gflat(prob.ms, (nv, nv)),
         mu_rows=np.ascontiguousarray(mu_u),
         gi=gi,
         ui=np.ascontiguousarray(ui, dtype=np.int64),
         group=np.ascontiguousarray(group, dtype=np.int64),
-        dt=dt,
-        eps_rel=eps_rel,
-        scales=(sc.impulse, sc.velocity, sc.impulse_floor),
+        dt=prob.dt,
+        eps_rel=prob.eps_rel,
+        scales=(prob.sc.impulse, prob.sc.velocity, prob.sc.impulse_floor),
         sensitivity=sensitivity,
     )
     if n_bad or not np.isfinite(out["v_next"]).all():
@@ -807,6 +868,72 @@ class Hypotheses:
         return np.asarray(self.valid.sum(axis=1), dtype=np.int64)
 
 
+def _radix(n_live_max: list[int], max_tuples: int) -> tuple[int, ...]:
+    """Live modes per contact over all particles, reduced (largest first) until the number
+    of joint tuples is at most max_tuples."""
+    radix_t = list(n_live_max)
+    while math.prod(radix_t) > max_tuples:
+        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    return tuple(radix_t)
+
+
+@functools.lru_cache(maxsize=64)
+def _layout_arrays(layout: ContactLayout) -> tuple[IntArray, IntArray, IntArray]:
+    """`_layout_rules` as int arrays for the compiled kernel (crowded groups padded -1)."""
+    crowded, forbidden, same = _layout_rules(layout)
+    width = max((len(g) for g in crowded), default=0)
+    crowd = np.full((len(crowded), width), -1, dtype=np.int64)
+    for i, g in enumerate(crowded):
+        crowd[i, : len(g)] = g
+    out = (
+        crowd,
+        np.asarray(forbidden, dtype=np.int64).reshape(-1, 2),
+        np.asarray(same, dtype=np.int64).reshape(-1, 2),
+    )
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def _enumerate_compiled(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> Hypotheses:
+    """`enumerate_hypotheses` through `kernels.enumerate_tuples` (same rules)."""
+    n_p, n_c, _ = mg.shape
+    order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4), as the numpy path
+    sp = -np.sort(-mg, axis=-1)
+    live = sp >= threshold
+    live[..., 0] = True
+    with np.errstate(divide="ignore"):
+        lsp = np.where(live, np.log(sp), -np.inf)
+    radix_t = _radix(sum_last(live).max(axis=0).tolist(), max_tuples)
+    n_t = math.prod(radix_t)
+    pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
+    if layout is None:
+        empty = np.zeros((0, 2), dtype=np.int64)
+        rules = (np.zeros((0, 0), dtype=np.int64), empty, empty)
+    else:
+        rules = _layout_arrays(layout)
+    modes, logp, valid = kernels.enumerate_tuples(
+        order,
+        lsp,
+        threshold=threshold,
+        ranks=_mixed_radix(radix_t),
+        n_keep=min(max_hypotheses, pre_k),
+        pre_k=pre_k,
+        phi=None if (phi is None or layout is None) else np.asarray(phi, dtype=np.float64),
+        rules=rules,
+        both_tolerance=2e-3,
+    )
+    return Hypotheses(modes=modes, log_prior=logp, valid=valid)
+
+
 def enumerate_hypotheses(
     marginals: npt.ArrayLike,
     threshold: float,
@@ -815,6 +942,7 @@ def enumerate_hypotheses(
     layout: ContactLayout | None = None,
     phi: npt.ArrayLike | None = None,
     max_tuples: int = 4096,
+    compiled: bool | None = None,
 ) -> Hypotheses:
     """Enumerate the live joint mode hypotheses of every particle at once (no Python loop
     over particles).
@@ -824,8 +952,31 @@ def enumerate_hypotheses(
     product of live modes, ranked by log prior (sum of log marginals); geometrically impossible
     ones (`geometric_feasible`) are removed, joint hypotheses whose normalised probability is
     below threshold are pruned (the best is always kept), and at most max_hypotheses are kept.
+
+    compiled: use `kernels.enumerate_tuples` (None: when numba is available); the same
+    hypotheses as the numpy path, except the order among exactly tied log priors at the
+    boundary of a truncated enumeration (numpy's argpartition leaves it unspecified).
     """
     mg = np.asarray(marginals, dtype=np.float64)
+    if mg.ndim != 3 or mg.shape[-1] != N_MODES:
+        msg = f"marginals must be (particles, contacts, {N_MODES}), got shape {mg.shape}"
+        raise SolverError(msg)
+    if compiled is None:
+        compiled = kernels.AVAILABLE
+    enumerate_ = _enumerate_compiled if compiled else _enumerate_numpy
+    return enumerate_(mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples)
+
+
+def _enumerate_numpy(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> Hypotheses:
+    """`enumerate_hypotheses` with batched numpy operations (the reference path)."""
     n_p, n_c, _ = mg.shape
     order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4)
     sp = -np.sort(-mg, axis=-1)  # = mg along `order` (same values, no gather)
@@ -833,11 +984,9 @@ def enumerate_hypotheses(
     live[..., 0] = True
     n_live = sum_last(live)  # (P, C)
     radix = n_live.max(axis=0)  # (C,)
-    radix_t = radix.tolist()
-    while math.prod(radix_t) > max_tuples:
-        radix_t[radix_t.index(max(radix_t))] -= 1  # the first largest, as np.argmax
+    radix_t = _radix(radix.tolist(), max_tuples)
     n_t = math.prod(radix_t)
-    ranks = _mixed_radix(tuple(radix_t))
+    ranks = _mixed_radix(radix_t)
     with np.errstate(divide="ignore"):
         lsp = np.log(sp)  # (P, C, 4)
     lsp = np.where(live, lsp, -np.inf)

@@ -23,6 +23,23 @@ i.e. M is replaced by the effective mass M + dt K everywhere above (the LCP stay
 `step` re-linearises at the new v' (iteratively reweighted: a majorise-minimise iteration
 of the exact implicit Coulomb step) until v' stops changing; `support_iterations=1` keeps
 the single linearisation at the start velocity (the filter's linear model).
+
+Quasi-static push model (``surface.model: quasi_static``; Lynch & Mason 1996, Hogan &
+Rodriguez 2016; `dbcslam_core.quasi_static`): inertia is neglected and the support friction
+wrench lies on the ellipsoidal limit surface of the pressure distribution, f_max = mu_s m g,
+m_max = c f_max with c = sum_i w_i |p_i| (the mean lever arm of the support pressure,
+`limit_surface_c`). With D = diag(1, 1, c^2) (the same in body and world frame: rotations
+leave the translational block unchanged) the friction wrench of a twist v' is
+-f_max D v' / |v'|_D, |v|_D = sqrt(v_x^2 + v_y^2 + c^2 w^2), i.e. the same linear form as
+above with K = mu_s m g D / max(|v_lin|_D, v_eps) and no mass and no coasting:
+
+    dt K v' = dt F + Jn^T ln + Jt^T lt       (effective mass dt K, free velocity dt (dt K)^-1 F)
+
+so the object moves only while pushed, with twist ∝ D^-1 J^T lambda = diag(1, 1, 1/c^2) x the
+pusher wrench: the motion cone, sticking / sliding / separation of the pusher contact are the
+LCP's (and the filter's mode enumeration's) contact modes. The velocity does not depend on
+the linearisation (K's shape is fixed, only its scale changes); the impulse does, so `step`
+re-linearises at v' until the wrench lies on the limit surface.
 """
 
 from __future__ import annotations
@@ -42,6 +59,7 @@ from .extensions import (
     compose_mass_factor,
     compose_mu_field,
     extra_force,
+    support_centre_fraction,
     support_friction_mu,
     support_rim_fraction,
 )
@@ -129,7 +147,10 @@ class PlanarModel:
     maximum number of re-linearisations per step (1 = linearised at the start velocity);
     support_tol (m/s): stop when v' changes by less. `support_points` / `support_weights`
     hold the pressure distribution (``surface.pressure``, or the ``support_pressure``
-    extension's rim_fraction blend of uniform and rim).
+    extension's rim_fraction blend of uniform and rim; a ``support_concentration`` extension
+    puts its centre_fraction of the load on an extra point at the centre of mass).
+    quasi_static (``surface.model: quasi_static``): the quasi-static push model of the module
+    docstring, with the limit-surface ratio `limit_surface_c` (m) of that distribution.
     """
 
     def __init__(
@@ -172,8 +193,35 @@ class PlanarModel:
         pts, wts = support_points(
             verts, surf.pressure_model, rim_fraction=support_rim_fraction(self.extensions)
         )
+        centre = support_centre_fraction(self.extensions)
+        if centre > 0.0:
+            pts = np.vstack([pts, np.zeros((1, 2))])
+            wts = np.concatenate([(1.0 - centre) * wts, [centre]])
         self.support_points: F64 = pts
         self.support_weights: F64 = wts
+        self.limit_surface_c: float = float(
+            np.sum(wts * np.hypot(pts[:, 0], pts[:, 1])) / np.sum(wts)
+        )
+        """c = m_max / f_max (m): mean lever arm of the support pressure about the CoM."""
+        self.quasi_static: bool = scenario.kind == "push" and surf.quasi_static
+        if self.quasi_static:
+            self._check_quasi_static()
+
+    def _check_quasi_static(self) -> None:
+        if self.limit_surface_c < 1e-6:
+            msg = (
+                f"the quasi-static push model needs a pressure distribution with a lever arm: "
+                f"limit-surface c = {self.limit_surface_c:.3g} m (pressure "
+                f"{self.scenario.surface.pressure_model!r}); use uniform, rim, vertices or tripod"
+            )
+            raise ModelError(msg)
+        surf = self.scenario.surface
+        if self.support_mu is None and surf.pair is None and not surf.mu > 0.0:
+            msg = (
+                "the quasi-static push model needs support friction (it sets the force scale "
+                "f_max = mu_s m g): give surface.pair (estimated) or surface.mu > 0"
+            )
+            raise ModelError(msg)
 
     # ------------------------------------------------------------------------ ingredients
     @property
@@ -256,6 +304,9 @@ class PlanarModel:
         if np.any(~np.isfinite(m)) or np.any(m < 0.0):
             msg = f"support friction coefficient must be finite and >= 0, got {m}"
             raise ModelError(msg)
+        if self.quasi_static and np.any(m <= 0.0):
+            msg = f"the quasi-static push model needs a support coefficient > 0, got {m}"
+            raise ModelError(msg)
         return m
 
     def support_matrix(
@@ -273,6 +324,8 @@ class PlanarModel:
         evaluated at q[..., nq], v[..., nv] (the linearisation velocity); mu_surface [...]
         broadcasts over the leading axes; K is linear in it (compute K at mu 1 and scale).
         Symmetric positive semi-definite. velocity_eps (m/s) defaults to the scenario's.
+        Quasi-static model: K = mu_s m g D / max(|v|_D, velocity_eps), D = diag(1, 1, c^2)
+        (ellipsoidal limit surface, module docstring).
         """
         qa = np.asarray(q, dtype=np.float64)
         va = np.asarray(v, dtype=np.float64)
@@ -282,6 +335,11 @@ class PlanarModel:
             msg = f"velocity_eps must be > 0 m/s, got {eps}"
             raise ModelError(msg)
         load = self.mass_diag[0] * self.scenario.gravity
+        if self.quasi_static:
+            d = self.limit_surface_diag
+            speed = np.sqrt(np.sum(d * va * va, axis=-1))
+            scale = load / np.maximum(speed, eps)
+            return np.asarray(mu[..., None, None] * (scale[..., None, None] * np.diag(d)))
         w = self.support_weights
         nv = self.nq
         if nv == 2:
@@ -317,10 +375,51 @@ class PlanarModel:
     ) -> F64:
         """M + dt K(q, v, mu_surface) [..., nv, nv] (kg, kg m^2): see `support_matrix`.
 
-        The step's velocity update is (M + dt K) v' = M v + dt F + J^T impulses.
+        The step's velocity update is (M + dt K) v' = M v + dt F + J^T impulses. Quasi-static
+        model: dt K (no inertia).
         """
         k = self.support_matrix(q, v, mu_surface, velocity_eps=velocity_eps)
+        if self.quasi_static:
+            return np.asarray(self.scenario.dt * k, dtype=np.float64)
         return np.asarray(self.mass_matrix + self.scenario.dt * k, dtype=np.float64)
+
+    @property
+    def limit_surface_diag(self) -> F64:
+        """D = (1, 1, c^2) (m^2 for the rotation): the ellipsoidal limit-surface metric."""
+        return np.asarray([1.0, 1.0, self.limit_surface_c**2], dtype=np.float64)
+
+    def support_terms(
+        self,
+        q: ArrayLike,
+        v: ArrayLike,
+        u: ArrayLike,
+        mu_surface: ArrayLike,
+        *,
+        velocity_eps: float | None = None,
+    ) -> tuple[F64, F64]:
+        """Effective mass [P, B, nv, nv] and free velocity [P, B, nv] for P states x B
+        support coefficients (the filter's friction hypotheses).
+
+        q, v [P, nq]: states (v is the linearisation velocity); u [nq] or [P, nq]: input
+        wrench; mu_surface [B], or [P, B] per state (> 0 for the quasi-static model). K is
+        computed once at mu 1
+        and scaled per coefficient. Dynamic: (M + dt mu K, (M + dt mu K)^-1 (M v + dt F));
+        quasi-static: (dt mu K, (dt mu K)^-1 dt F) - the object does not coast.
+        """
+        qa = np.asarray(q, dtype=np.float64)
+        va = np.asarray(v, dtype=np.float64)
+        mus = np.asarray(mu_surface, dtype=np.float64)
+        if self.quasi_static and np.any(mus <= 0.0):
+            msg = (
+                f"the quasi-static push model needs support coefficients > 0 (f_max = mu_s m "
+                f"g), got {mus.tolist()}"
+            )
+            raise ModelError(msg)
+        k1 = self.support_matrix(qa, va, 1.0, velocity_eps=velocity_eps)
+        mus2 = mus[None, :] if mus.ndim == 1 else mus  # per state: [P, B]
+        dtk = self.scenario.dt * mus2[:, :, None, None] * k1[:, None]
+        m_eff = dtk if self.quasi_static else self.mass_matrix + dtk
+        return m_eff, self.free_velocity(qa[:, None], va[:, None], u, m_eff)
 
     def free_velocity(
         self,
@@ -332,12 +431,18 @@ class PlanarModel:
         """v_free[..., nv] = m_eff^-1 (M v + dt F(q, v, u)) (m/s): velocity without impulses.
 
         m_eff: effective mass [..., nv, nv] (`effective_mass`); None = M (no support friction).
+        Quasi-static model: m_eff^-1 dt F (no coasting; m_eff is required).
         """
         va = np.asarray(v, dtype=np.float64)
         f = self.generalized_force(q, va, u)
         if m_eff is None:
+            if self.quasi_static:
+                msg = "the quasi-static push model needs the effective mass (support friction)"
+                raise ModelError(msg)
             return np.asarray(va + self.scenario.dt * f / self.mass_diag, dtype=np.float64)
-        rhs = self.mass_diag * va + self.scenario.dt * f
+        rhs = self.scenario.dt * f
+        if not self.quasi_static:
+            rhs = rhs + self.mass_diag * va
         me = np.asarray(m_eff, dtype=np.float64)
         lead = np.broadcast_shapes(me.shape[:-2], rhs.shape[:-1])
         me = np.broadcast_to(me, (*lead, self.nq, self.nq))

@@ -4,7 +4,7 @@ For each scenario and seed: synthesize a ground-truth trajectory with noisy obse
 (:mod:`dbcslam_core.synthetic`), run DBC-SLAM over it (and, on the edge, the fixed-friction
 baseline frozen to each candidate), collect the per-step estimates into a :class:`RunTrace`
 and score it with :mod:`dbcslam_core.metrics`. Results are plain records; plotting and file
-output live in ``dbcslam_ros.experiments`` / ``dbcslam_ros.plotting``.
+output live in ``dbcslam_research.experiments`` / ``dbcslam_ros.offline.plotting``.
 
 Timing convention of a run: the filter is initialised around the first observation (step 0,
 position std = observation noise) with the joint positions of step 0; filter step k = 1..T-1

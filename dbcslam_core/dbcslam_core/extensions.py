@@ -20,6 +20,11 @@ Effect vocabulary (interface contract, `dbcslam discrepancy`), parameters in SI 
 * ``support_pressure``: ``rim_fraction`` in [0, 1] - the support pressure distribution is
   (1 - rim_fraction) x uniform over the outline area + rim_fraction x along the outline
   (replaces ``surface.pressure``; `geometry.support_points`); push-specific
+* ``support_concentration``: ``centre_fraction`` in [0, 0.95] - that fraction of the normal
+  load rests at the centre of mass, the rest is spread as the scenario's pressure
+  distribution (a plate that is not perfectly flat bears more of its weight near the middle);
+  it shrinks the frictional moment: the limit-surface ratio c = m_max / f_max becomes
+  (1 - centre_fraction) c of the distribution (`PlanarModel.limit_surface_c`); push-specific
 * ``none`` - no effect
 
 `PlanarModel` takes a tuple of extensions; the empty tuple is the nominal model. Several
@@ -45,6 +50,7 @@ __all__ = [
     "compose_mu_field",
     "compose_observation",
     "extra_force",
+    "support_centre_fraction",
     "support_friction_mu",
     "support_rim_fraction",
 ]
@@ -61,6 +67,7 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "sensor_bias": ("x", "y", "yaw"),
     "support_friction": ("mu",),
     "support_pressure": ("rim_fraction",),
+    "support_concentration": ("centre_fraction",),
     "none": (),
 }
 """Effect name -> parameter names (all required, floats)."""
@@ -95,6 +102,9 @@ class ModelExtension:
             raise ModelError(msg)
         if self.effect == "support_pressure" and not 0.0 <= p["rim_fraction"] <= 1.0:
             msg = f"effect 'support_pressure': rim_fraction must lie in [0, 1], got {p}"
+            raise ModelError(msg)
+        if self.effect == "support_concentration" and not 0.0 <= p["centre_fraction"] <= 0.95:
+            msg = f"effect 'support_concentration': centre_fraction must lie in [0, 0.95], got {p}"
             raise ModelError(msg)
         for key in ("b", "seconds", "mu"):
             if key in p and p[key] < 0 and self.effect != "friction_patch":
@@ -228,4 +238,14 @@ def support_rim_fraction(exts: Sequence[ModelExtension]) -> float | None:
     for e in exts:
         if e.effect == "support_pressure":
             f = e.param("rim_fraction")
+    return f
+
+
+def support_centre_fraction(exts: Sequence[ModelExtension]) -> float:
+    """centre_fraction of a ``support_concentration`` extension (0 when absent; the last
+    wins)."""
+    f = 0.0
+    for e in exts:
+        if e.effect == "support_concentration":
+            f = e.param("centre_fraction")
     return f

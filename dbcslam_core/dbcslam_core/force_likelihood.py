@@ -25,7 +25,7 @@ latent force, not a fresh draw per step, so the Occam factor of a per-step margi
 mode (towards separated) and the surface friction (towards the smallest mu_s that still
 holds the preload).
 
-Measured effect (50 MIT ABS pushes, `python -m dbcslam_ros.mitpush_eval`, 300 particles, with
+Measured effect (50 MIT ABS pushes, `python -m dbcslam_research.mitpush_eval`, 300 particles, with
 the importer's measured pusher-tip noise): with the allowance wired into `DbcSlamFilter`
 contact agreement 0.929 (F/T pushes 0.969), without 0.922 (0.969); per push +0.001 on
 average: neutral there, because once the estimate rests against the pusher the mode
@@ -84,7 +84,7 @@ OUTLIER_STD = 2.0
 #: Static / kinetic support friction ratio of the preload bound: the model has one
 #: coefficient per pair, so the static bound is taken equal to the kinetic one (Coulomb).
 #: MIT ABS pushes: the preload at rest is 0.04-0.44 m g (median per push), the force while
-#: the object slides 0.25-0.58 m g (`dbcslam_ros.mitpush_eval`).
+#: the object slides 0.25-0.58 m g (`dbcslam_research.mitpush_eval`).
 STATIC_FRICTION_RATIO = 1.0
 
 

@@ -15,7 +15,9 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .angles import wrap_angle
 from .errors import ModelError
+from .polygon import as_polygon, cross2, polygon_area, polygon_centroid, polygon_inertia
 from .scenario import PRESSURE_MODELS, Disk, HalfSpace, Scenario
 
 __all__ = [
@@ -50,61 +52,6 @@ def rotate(yaw: ArrayLike, p: ArrayLike) -> F64:
     c, s = np.cos(th), np.sin(th)
     x, y = pa[..., 0], pa[..., 1]
     return np.stack([c * x - s * y, s * x + c * y], -1)
-
-
-def cross2(a: ArrayLike, b: ArrayLike) -> F64:
-    """Planar cross product a_x b_y - a_y b_x over the last axis (size 2)."""
-    aa = np.asarray(a, dtype=np.float64)
-    bb = np.asarray(b, dtype=np.float64)
-    return np.asarray(aa[..., 0] * bb[..., 1] - aa[..., 1] * bb[..., 0], dtype=np.float64)
-
-
-def wrap_angle(a: ArrayLike) -> F64:
-    """Angles wrapped to [-pi, pi)."""
-    return np.asarray((np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi)
-
-
-def _poly(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
-    v = np.asarray(vertices, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
-        msg = f"polygon needs vertices of shape (n >= 3, 2), got shape {v.shape}"
-        raise ModelError(msg)
-    return v
-
-
-def polygon_area(vertices: Sequence[Sequence[float]] | ArrayLike) -> float:
-    """Signed area (m^2, > 0 for counter-clockwise vertices) of a simple polygon."""
-    v = _poly(vertices)
-    return float(0.5 * np.sum(cross2(v, np.roll(v, -1, axis=0))))
-
-
-def polygon_centroid(vertices: Sequence[Sequence[float]] | ArrayLike) -> F64:
-    """Centroid (m) of the uniform-density polygon area."""
-    v = _poly(vertices)
-    w = np.roll(v, -1, axis=0)
-    cr = cross2(v, w)
-    a = 0.5 * np.sum(cr)
-    if abs(a) < 1e-300:
-        msg = f"polygon has zero area: {v.tolist()}"
-        raise ModelError(msg)
-    return np.asarray(np.sum((v + w) * cr[:, None], axis=0) / (6.0 * a), dtype=np.float64)
-
-
-def polygon_inertia(
-    vertices: Sequence[Sequence[float]] | ArrayLike, mass: float, about_centroid: bool = False
-) -> float:
-    """Polar moment of inertia (kg m^2) of a uniform polygon of `mass` about the origin.
-
-    With `about_centroid` the moment is taken about the area centroid instead.
-    """
-    v = _poly(vertices)
-    if about_centroid:
-        v = v - polygon_centroid(v)
-    w = np.roll(v, -1, axis=0)
-    cr = cross2(v, w)
-    a = 0.5 * np.sum(cr)
-    j = np.sum(cr * (np.sum(v * v, 1) + np.sum(v * w, 1) + np.sum(w * w, 1))) / 12.0
-    return float(mass * j / a)
 
 
 def _subdivided_triangles(tris: F64, k: int) -> tuple[F64, F64]:
@@ -206,7 +153,7 @@ def support_points(
     pressure centre sum w_i p_i is the centre of mass (0, 0) exactly (static moment balance on
     a flat support). A point mass (no vertices) gets the single point (0, 0).
     """
-    v = _poly(vertices) if np.size(vertices) else np.zeros((1, 2))
+    v = as_polygon(vertices) if np.size(vertices) else np.zeros((1, 2))
     if pressure not in PRESSURE_MODELS:
         msg = f"unknown pressure distribution {pressure!r}; valid are {list(PRESSURE_MODELS)}"
         raise ModelError(msg)
@@ -336,6 +283,33 @@ def contact_kinematics(
     env/env_vel default to zeros. Returns `ContactKinematics` with leading shape the
     broadcast of the three leading shapes.
     """
+    qa, ea, ev = _kinematics_inputs(scenario, q, env, env_vel)
+    lead = qa.shape[:-1]
+    nq = scenario.nq
+    n_c = scenario.n_contacts
+    out = ContactKinematics(
+        phi=np.empty((*lead, n_c)),
+        Jn=np.zeros((*lead, n_c, nq)),
+        Jt=np.zeros((*lead, n_c, nq)),
+        vn_env=np.zeros((*lead, n_c)),
+        vt_env=np.zeros((*lead, n_c)),
+        point=np.empty((*lead, n_c, 2)),
+        s=np.empty((*lead, n_c)),
+        normal=np.empty((*lead, n_c, 2)),
+    )
+    lay = _layout(scenario)
+    yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
+    if len(lay.hs_idx):
+        _halfspace_contacts(out, lay, qa[..., None, 0:2], yaw, ea, ev, polygon=nq == 3)
+    if len(lay.dk_idx):
+        _disk_contacts(out, lay, qa[..., None, 0:2], yaw, ea, ev)
+    return out
+
+
+def _kinematics_inputs(
+    scenario: Scenario, q: ArrayLike, env: ArrayLike | None, env_vel: ArrayLike | None
+) -> tuple[F64, F64, F64]:
+    """q broadcast to the common leading shape, env and env_vel (validated)."""
     nq = scenario.nq
     n_env = len(scenario.joints)
     qa = np.asarray(q, dtype=np.float64)
@@ -354,89 +328,93 @@ def contact_kinematics(
     lead = np.broadcast_shapes(qa.shape[:-1], ea.shape[:-1], ev.shape[:-1])
     if qa.shape[:-1] != lead:
         qa = np.broadcast_to(qa, (*lead, nq))
-    # env / env_vel broadcast in the arithmetic and assignments below
-    lay = _layout(scenario)
-    n_c = scenario.n_contacts
-    phi = np.empty((*lead, n_c))
-    jn = np.zeros((*lead, n_c, nq))
-    jt = np.zeros((*lead, n_c, nq))
-    vn_env = np.zeros((*lead, n_c))
-    vt_env = np.zeros((*lead, n_c))
-    point = np.empty((*lead, n_c, 2))
-    s = np.empty((*lead, n_c))
-    normal = np.empty((*lead, n_c, 2))
-    pos = qa[..., None, 0:2]  # (..., 1, 2)
-    yaw = qa[..., 2] if nq == 3 else np.zeros(lead)
+    # env / env_vel broadcast in the arithmetic and assignments of the callers
+    return qa, ea, ev
 
-    if len(lay.hs_idx):
-        idx = lay.hs_sel
-        jidx = lay.hs_joint
-        # a point mass (nq = 2) has no orientation: its contact points are its origin
-        r_w = rotate(yaw[..., None], lay.hs_r) if nq == 3 else lay.hs_r  # (..., H, 2)
-        p = pos + r_w
-        n = lay.hs_n
-        t = lay.hs_t
-        d = lay.hs_off + lay.hs_sign * _joint_values(ea, jidx)
-        phi[..., idx] = p[..., 0] * n[:, 0] + p[..., 1] * n[:, 1] - d  # = sum(p * n, -1) - d
-        jn[..., idx, :2] = n
-        jt[..., idx, :2] = t
-        if nq == 3:
-            jn[..., idx, 2] = cross2(r_w, n)
-            jt[..., idx, 2] = cross2(r_w, t)
-        vn_env[..., idx] = lay.hs_sign * _joint_values(ev, jidx)
-        point[..., idx, :] = p
-        s[..., idx] = p[..., 0] * t[:, 0] + p[..., 1] * t[:, 1]
-        normal[..., idx, :] = n
 
-    if len(lay.dk_idx):
-        idx = lay.dk_sel
-        jx = lay.dk_jx
-        jy = lay.dk_jy
-        centre = np.stack([ea[..., jx], ea[..., jy]], -1)  # (..., D, 2)
-        cvel = np.stack([ev[..., jx], ev[..., jy]], -1)
-        # centre in the body frame
-        c_b = rotate(-yaw[..., None], centre - pos)  # (..., D, 2)
-        v = lay.verts  # (V, 2)
-        w = np.roll(v, -1, 0)
-        e = w - v  # (V, 2)
-        elen2 = np.sum(e * e, -1)
-        rel = c_b[..., None, :] - v  # (..., D, V, 2)
-        tt = np.clip(np.sum(rel * e, -1) / elen2, 0.0, 1.0)  # (..., D, V)
-        cp = v + tt[..., None] * e  # closest point on each edge
-        diff = c_b[..., None, :] - cp
-        dist2 = np.sum(diff * diff, -1)
-        k = np.argmin(dist2, -1)  # (..., D)
-        cp_k = np.take_along_axis(cp, k[..., None, None], -2)[..., 0, :]
-        dist = np.sqrt(np.take_along_axis(dist2, k[..., None], -1)[..., 0])
-        inside = np.all(cross2(e, rel) >= 0.0, -1)  # CCW polygon
-        out_n = np.stack([e[:, 1], -e[:, 0]], -1) / np.sqrt(elen2)[:, None]  # outward normals
-        edge_out = out_n[k]  # (..., D, 2)
-        tiny = dist < 1e-12
-        safe = np.where(tiny, 1.0, dist)[..., None]
-        # normal (body frame) from the pusher towards the body
-        n_b = np.where(
-            tiny[..., None],
-            -edge_out,
-            np.where(inside[..., None], 1.0, -1.0) * (c_b - cp_k) / safe,
-        )
-        sd = np.where(inside, -dist, dist)
-        r_w = rotate(yaw[..., None], cp_k)
-        n_w = rotate(yaw[..., None], n_b)
-        t_w = np.stack([n_w[..., 1], -n_w[..., 0]], -1)
-        phi[..., idx] = sd - lay.dk_radius
-        jn[..., idx, 0] = n_w[..., 0]
-        jn[..., idx, 1] = n_w[..., 1]
-        jt[..., idx, 0] = t_w[..., 0]
-        jt[..., idx, 1] = t_w[..., 1]
-        jn[..., idx, 2] = cross2(r_w, n_w)
-        jt[..., idx, 2] = cross2(r_w, t_w)
-        vn_env[..., idx] = np.sum(cvel * n_w, -1)
-        vt_env[..., idx] = np.sum(cvel * t_w, -1)
-        point[..., idx, :] = pos + r_w
-        ttk = np.take_along_axis(tt, k[..., None], -1)[..., 0]
-        s[..., idx] = lay.perim0[k] + ttk * np.sqrt(elen2)[k]
-        normal[..., idx, :] = n_w
-    return ContactKinematics(phi, jn, jt, vn_env, vt_env, point, s, normal)
+def _halfspace_contacts(  # noqa: PLR0917 - the contact arrays and the state, unpacked
+    out: ContactKinematics,
+    lay: _Layout,
+    pos: F64,
+    yaw: F64,
+    ea: F64,
+    ev: F64,
+    *,
+    polygon: bool,
+) -> None:
+    """Fill the half-space (edge, jaw) contacts of `out`: pos (..., 1, 2) body position."""
+    idx = lay.hs_sel
+    jidx = lay.hs_joint
+    # a point mass (nq = 2) has no orientation: its contact points are its origin
+    r_w = rotate(yaw[..., None], lay.hs_r) if polygon else lay.hs_r  # (..., H, 2)
+    p = pos + r_w
+    n = lay.hs_n
+    t = lay.hs_t
+    d = lay.hs_off + lay.hs_sign * _joint_values(ea, jidx)
+    out.phi[..., idx] = p[..., 0] * n[:, 0] + p[..., 1] * n[:, 1] - d  # = sum(p * n, -1) - d
+    out.Jn[..., idx, :2] = n
+    out.Jt[..., idx, :2] = t
+    if polygon:
+        out.Jn[..., idx, 2] = cross2(r_w, n)
+        out.Jt[..., idx, 2] = cross2(r_w, t)
+    out.vn_env[..., idx] = lay.hs_sign * _joint_values(ev, jidx)
+    out.point[..., idx, :] = p
+    out.s[..., idx] = p[..., 0] * t[:, 0] + p[..., 1] * t[:, 1]
+    out.normal[..., idx, :] = n
+
+
+def _disk_contacts(  # noqa: PLR0917 - the contact arrays and the state, unpacked
+    out: ContactKinematics, lay: _Layout, pos: F64, yaw: F64, ea: F64, ev: F64
+) -> None:
+    """Fill the disk (pusher) contacts of `out`: the closest point of the body outline to
+    the disk centre, normal from the pusher into the body (also with the centre inside)."""
+    idx = lay.dk_sel
+    jx = lay.dk_jx
+    jy = lay.dk_jy
+    centre = np.stack([ea[..., jx], ea[..., jy]], -1)  # (..., D, 2)
+    cvel = np.stack([ev[..., jx], ev[..., jy]], -1)
+    # centre in the body frame
+    c_b = rotate(-yaw[..., None], centre - pos)  # (..., D, 2)
+    v = lay.verts  # (V, 2)
+    w = np.roll(v, -1, 0)
+    e = w - v  # (V, 2)
+    elen2 = np.sum(e * e, -1)
+    rel = c_b[..., None, :] - v  # (..., D, V, 2)
+    tt = np.clip(np.sum(rel * e, -1) / elen2, 0.0, 1.0)  # (..., D, V)
+    cp = v + tt[..., None] * e  # closest point on each edge
+    diff = c_b[..., None, :] - cp
+    dist2 = np.sum(diff * diff, -1)
+    k = np.argmin(dist2, -1)  # (..., D)
+    cp_k = np.take_along_axis(cp, k[..., None, None], -2)[..., 0, :]
+    dist = np.sqrt(np.take_along_axis(dist2, k[..., None], -1)[..., 0])
+    inside = np.all(cross2(e, rel) >= 0.0, -1)  # CCW polygon
+    out_n = np.stack([e[:, 1], -e[:, 0]], -1) / np.sqrt(elen2)[:, None]  # outward normals
+    edge_out = out_n[k]  # (..., D, 2)
+    tiny = dist < 1e-12
+    safe = np.where(tiny, 1.0, dist)[..., None]
+    # normal (body frame) from the pusher towards the body
+    n_b = np.where(
+        tiny[..., None],
+        -edge_out,
+        np.where(inside[..., None], 1.0, -1.0) * (c_b - cp_k) / safe,
+    )
+    sd = np.where(inside, -dist, dist)
+    r_w = rotate(yaw[..., None], cp_k)
+    n_w = rotate(yaw[..., None], n_b)
+    t_w = np.stack([n_w[..., 1], -n_w[..., 0]], -1)
+    out.phi[..., idx] = sd - lay.dk_radius
+    out.Jn[..., idx, 0] = n_w[..., 0]
+    out.Jn[..., idx, 1] = n_w[..., 1]
+    out.Jt[..., idx, 0] = t_w[..., 0]
+    out.Jt[..., idx, 1] = t_w[..., 1]
+    out.Jn[..., idx, 2] = cross2(r_w, n_w)
+    out.Jt[..., idx, 2] = cross2(r_w, t_w)
+    out.vn_env[..., idx] = np.sum(cvel * n_w, -1)
+    out.vt_env[..., idx] = np.sum(cvel * t_w, -1)
+    out.point[..., idx, :] = pos + r_w
+    ttk = np.take_along_axis(tt, k[..., None], -1)[..., 0]
+    out.s[..., idx] = lay.perim0[k] + ttk * np.sqrt(elen2)[k]
+    out.normal[..., idx, :] = n_w
 
 
 def contact_coordinates(scenario: Scenario, q: ArrayLike, env: ArrayLike | None = None) -> F64:

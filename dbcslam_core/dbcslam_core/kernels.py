@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AVAILABLE", "gaussian_update", "reduced_dynamics"]
+__all__ = ["AVAILABLE", "enumerate_tuples", "gaussian_update", "reduced_dynamics"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -481,3 +481,177 @@ def reduced_dynamics(
         out["impulse_response"],
     )
     return out, int(n_bad)
+
+
+def _insert_desc(  # noqa: PLR0917 - numba helper
+    vals: FloatArray, idx: IntArray, n: int, cap: int, v: float, i: int
+) -> int:
+    """Insert (v, i) into the first n entries of vals/idx kept sorted by descending v, ties
+    in insertion order (a stable sort of -v); at most cap entries. Returns the new n."""
+    if n == cap and not v > vals[n - 1]:
+        return n  # not better than the last kept (ties keep the earlier)
+    pos = n if n < cap else cap - 1
+    while pos > 0 and v > vals[pos - 1]:
+        pos -= 1
+    last = min(n, cap - 1)
+    for j in range(last, pos, -1):
+        vals[j] = vals[j - 1]
+        idx[j] = idx[j - 1]
+    vals[pos] = v
+    idx[pos] = i
+    return min(n + 1, cap)
+
+
+def _feasible(  # noqa: PLR0917 - numba helper: positional arrays
+    modes: IntArray,
+    crowded: IntArray,
+    forbidden: IntArray,
+    same: IntArray,
+    phi: FloatArray,
+    has_phi: bool,
+    both_tolerance: float,
+) -> bool:
+    """`contact_modes.geometric_feasible` of one joint assignment modes (C,)."""
+    for g in range(crowded.shape[0]):
+        n_in = 0
+        for j in range(crowded.shape[1]):
+            c = crowded[g, j]
+            if c >= 0 and modes[c] != _SEP:
+                n_in += 1
+        if n_in > 2:
+            return False
+    for f in range(forbidden.shape[0]):
+        if modes[forbidden[f, 0]] != _SEP and modes[forbidden[f, 1]] != _SEP:
+            return False
+    for s in range(same.shape[0]):
+        a = same[s, 0]
+        b = same[s, 1]
+        both = modes[a] != _SEP and modes[b] != _SEP
+        if both and (not has_phi or phi[a] + phi[b] > both_tolerance):
+            return False
+    return True
+
+
+def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    order: IntArray,
+    lsp: FloatArray,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray,
+    has_phi: bool,
+    crowded: IntArray,
+    forbidden: IntArray,
+    same: IntArray,
+    both_tolerance: float,
+    out_modes: IntArray,
+    out_logp: FloatArray,
+    out_valid: npt.NDArray[np.bool_],
+) -> int:
+    """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
+    n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
+    tuples are screened first, as there); returns the largest valid count."""
+    n_p, n_c, _ = lsp.shape
+    n_t = ranks.shape[0]
+    truncated = pre_k < n_t
+    pre_v = np.empty(max(pre_k, 1))
+    pre_i = np.empty(max(pre_k, 1), dtype=np.int64)
+    top_v = np.empty(n_keep)
+    top_i = np.empty(n_keep, dtype=np.int64)
+    cand = np.empty(n_c, dtype=np.int64)
+    e = np.empty(n_keep)
+    k_used = 1
+    for p in range(n_p):
+        n_pre = 0
+        n_top = 0
+        for t in range(n_t):
+            lp = lsp[p, 0, ranks[t, 0]]
+            for c in range(1, n_c):
+                lp += lsp[p, c, ranks[t, c]]
+            if truncated:
+                n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
+                continue
+            for c in range(n_c):
+                cand[c] = order[p, c, ranks[t, c]]
+            if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                lp = -np.inf
+            n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
+        if truncated:
+            for r in range(n_pre):
+                t = pre_i[r]
+                lp = pre_v[r]
+                for c in range(n_c):
+                    cand[c] = order[p, c, ranks[t, c]]
+                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                    lp = -np.inf
+                n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
+        m = top_v[0] if np.isfinite(top_v[0]) else 0.0
+        tot = 0.0
+        for k in range(n_top):
+            e[k] = np.exp(top_v[k] - m)
+            tot += e[k]
+        tot = max(tot, 1e-300)
+        n_valid = 0
+        for k in range(n_top):
+            t = top_i[k]
+            for c in range(n_c):
+                out_modes[p, k, c] = order[p, c, ranks[t, c]]
+            ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
+            out_valid[p, k] = ok
+            out_logp[p, k] = top_v[k] if ok else -np.inf
+            if ok:
+                n_valid += 1
+        k_used = max(k_used, n_valid)
+    return k_used
+
+
+if AVAILABLE:
+    _insert_desc = numba.njit(cache=True, nogil=True)(_insert_desc)
+    _feasible = numba.njit(cache=True, nogil=True)(_feasible)
+    _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
+
+
+def enumerate_tuples(
+    order: IntArray,
+    lsp: FloatArray,
+    *,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray | None,
+    rules: tuple[IntArray, IntArray, IntArray],
+    both_tolerance: float,
+) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
+    """Compiled `contact_modes.enumerate_hypotheses` core: order (P, C, 4) the modes of each
+    contact by descending probability and lsp (P, C, 4) their log probabilities (-inf where
+    not live), in that order; ranks
+    (T, C) the mixed-radix digit tuples, n_keep = min(max_hypotheses, pre_k) columns, phi
+    (P, C) gaps or None, rules = (crowded (G, L) padded with -1, forbidden (F, 2), same
+    feature (S, 2)). Returns modes (P, K, C), log prior (P, K), valid (P, K), K the largest
+    valid count (>= 1)."""
+    n_p, n_c, _ = lsp.shape
+    out_modes = np.zeros((n_p, n_keep, n_c), dtype=np.int64)
+    out_logp = np.full((n_p, n_keep), -np.inf)
+    out_valid = np.zeros((n_p, n_keep), dtype=np.bool_)
+    has_phi = phi is not None
+    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
+    k_used = _enumerate_kernel(
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(lsp, dtype=np.float64),
+        float(threshold),
+        np.ascontiguousarray(ranks, dtype=np.int64),
+        int(n_keep),
+        int(pre_k),
+        ph,
+        has_phi,
+        rules[0],
+        rules[1],
+        rules[2],
+        float(both_tolerance),
+        out_modes,
+        out_logp,
+        out_valid,
+    )
+    return out_modes[:, :k_used], out_logp[:, :k_used], out_valid[:, :k_used]

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import ModelError
-from .geometry import polygon_area, polygon_centroid, polygon_inertia
+from .polygon import polygon_area, polygon_centroid, polygon_inertia
 
 __all__ = [
     "MIT_PUSH_THICKNESS",

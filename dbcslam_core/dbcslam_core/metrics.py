@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from dbcslam_core.angles import wrap_angle
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import ModelError
 
@@ -60,12 +61,6 @@ def _mean_or(values: NDArray[np.bool_], what: str, empty: float | None) -> float
             raise ModelError(msg)
         return float(empty)
     return float(np.mean(values))
-
-
-def wrap_angle(angle: ArrayLike) -> FloatArray:
-    """Wrap angles (rad) to [-pi, pi)."""
-    a = np.asarray(angle, dtype=np.float64)
-    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
 
 
 def position_rmse(estimate: ArrayLike, truth: ArrayLike, *, per_axis: bool = True) -> float:

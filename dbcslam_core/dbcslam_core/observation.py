@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core import kernels
+from dbcslam_core.angles import wrap_angle
 from dbcslam_core.errors import ModelError
 
 __all__ = [
@@ -51,12 +52,6 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 _LOG_2PI = math.log(2.0 * math.pi)
-
-
-def wrap_angle(a: npt.ArrayLike) -> FloatArray:
-    """Wrap angles (rad) to [-pi, pi)."""
-    x = np.asarray(a, dtype=np.float64)
-    return np.asarray((x + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -265,7 +265,6 @@ class FilterConfig:
                 "process_noise": (0.003, 0.003, 0.1),
                 "init_velocity_std": (0.2, 0.2, 2.0),
                 "map_cell": 0.005,
-                "friction_bank": True,
             }
             if kind == "gripper":
                 # light sliding contacts (0.03-0.1 N) close only ~60 um per step, less than the
@@ -273,6 +272,10 @@ class FilterConfig:
                 # contacts are estimate errors and close slowly (`transition.contact_gap`)
                 base["gap_closure"] = 0.05
                 base["gap_tolerance"] = 1e-3
+                # one state copy per friction candidate (the gripper's belief collapsed at
+                # small particle counts); not for push: on bags/push the bank ended
+                # confidently on a wrong pusher coefficient (0.1 / 0.3 at 500 particles)
+                base["friction_bank"] = True
             if kind == "push":
                 # constant-speed pusher: a stiff joint smoother (the pusher's position and
                 # velocity enter sticking impulses and the predicted pusher force at 1/dt)
@@ -314,6 +317,9 @@ class Estimate:
     live_hypotheses: mean number of live joint mode hypotheses per particle.
     log_likelihood: log p(o_l | o_{0:l-1}) (0 without observation). resampled: whether the
     particles were resampled in this step. step: step counter (1 for the first step).
+    particle_poses (R, nq) and particle_weights (R,): the particle cloud the estimate was
+    computed from (rows of the state arrays before resampling; weights sum to 1), e.g. for
+    visualisation.
     """
 
     step: int
@@ -328,6 +334,18 @@ class Estimate:
     live_hypotheses: float
     log_likelihood: float
     resampled: bool
+    particle_poses: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    particle_weights: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def non_finite_field(self) -> str | None:
+        """Name of the first output field holding a NaN or infinity (None: all finite)."""
+        for name in ("pose", "pose_cov", "twist", "twist_cov", "modes", "friction"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                return name
+        for pair, probs in enumerate(self.friction_map.probs):
+            if not np.all(np.isfinite(probs)):
+                return f"friction map (pair {pair})"
+        return None
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
@@ -454,6 +472,33 @@ class DbcSlamFilter:
         self._obs_model = PoseObservationModel(
             self.nq, scenario.noise.position, scenario.noise.yaw if self.nq == 3 else 0.0
         )
+        self._init_contacts()
+        self._init_friction()
+        self._scales = ViolationScales(
+            impulse=cfg.violation_impulse,
+            velocity=cfg.violation_velocity,
+            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
+        )
+        self._resampler = make_resampler(cfg.resampler)
+        prior = scenario.friction.prior
+        self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
+        self._initialised = False
+        self._step = 0
+        self._joints_prev: FloatArray | None = None
+        self._joint_filter = JointSmoother(
+            len(scenario.joints),
+            self.dt,
+            scenario.noise.joint,
+            cfg.joint_accel_std,
+            maneuver_accel_std=cfg.joint_maneuver_accel_std,
+        )
+        self.particles = self._empty_particles()
+
+    def _init_contacts(self) -> None:
+        """Static contact structure: layout for the geometric exclusions, friction pair and
+        obstacle of each contact, edge partners, the default force obstacle (a single
+        disk: the pusher)."""
+        scenario = self.scenario
         pcs = scenario.potential_contacts
         self._layout = ContactLayout(
             feature_vertex=tuple(c.vertex for c in pcs),
@@ -479,7 +524,12 @@ class DbcSlamFilter:
         self._contact_obstacle = np.asarray([c.obstacle for c in pcs], dtype=np.int64)
         disks = [i for i, o in enumerate(obstacles) if isinstance(o, Disk)]
         self._default_force_obstacle: int | None = disks[0] if len(disks) == 1 else None
-        fr = scenario.friction
+
+    def _init_friction(self) -> None:
+        """Joint friction hypotheses beta (B, pairs), their coefficients per contact, the
+        friction bank's copies, the support coefficient per hypothesis and the priors."""
+        cfg = self.config
+        fr = self.scenario.friction
         self.n_pairs = len(fr.pairs)
         self._n_cand = [len(c) for c in fr.candidates]
         self._k_max = max(self._n_cand)
@@ -510,7 +560,6 @@ class DbcSlamFilter:
         self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
         self._n_sub = self.n_b if self._bank else 1
         self.n_fb = 1 if self._bank else self.n_b
-        n_sub_particles = cfg.particles * self._n_sub
         self._sub_b: IntArray | None = (
             np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
         )
@@ -537,26 +586,19 @@ class DbcSlamFilter:
                 pri = pri * self._prior_pair[p][beta[:, p]]
             self._prior_b = pri / pri.sum()
         self._prior_fb = np.ones(1) if self._bank else self._prior_b  # arrays' friction axis
-        self._scales = ViolationScales(
-            impulse=cfg.violation_impulse,
-            velocity=cfg.violation_velocity,
-            impulse_floor=1e-3 * float(self.model.mass_diag[0]),
-        )
-        self._resampler = make_resampler(cfg.resampler)
-        self.map = FrictionMap(fr.prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
-        self._initialised = False
-        self._step = 0
-        self._joints_prev: FloatArray | None = None
-        self._joint_filter = JointSmoother(
-            len(scenario.joints),
-            self.dt,
-            scenario.noise.joint,
-            cfg.joint_accel_std,
-            maneuver_accel_std=cfg.joint_maneuver_accel_std,
-        )
+        # contacts of each friction pair (None: all contacts belong to the pair)
+        self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
+            None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
+            for pr in range(self.n_pairs)
+        ]
+
+    def _empty_particles(self) -> ParticleSet:
+        """The particle set before initialisation (all contacts separated, prior friction)."""
+        cfg = self.config
+        n_sub_particles = cfg.particles * self._n_sub
         modes0 = np.zeros((n_sub_particles, self.n_fb, self.n_c, N_MODES))
         modes0[..., Mode.SEPARATED] = 1.0
-        self.particles = ParticleSet(
+        return ParticleSet(
             q=np.zeros((n_sub_particles, self.nq)),
             v=np.zeros((n_sub_particles, self.nq)),
             log_w=np.zeros(cfg.particles),
@@ -568,11 +610,6 @@ class DbcSlamFilter:
             bank=np.tile(self._prior_b, (cfg.particles, 1)) if self._bank else None,
             copies=self._n_sub,
         )
-        # contacts of each friction pair (None: all contacts belong to the pair)
-        self._pair_contacts: list[npt.NDArray[np.bool_] | None] = [
-            None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
-            for pr in range(self.n_pairs)
-        ]
 
     # ------------------------------------------------------------- particle arrays
     @property
@@ -784,15 +821,13 @@ class DbcSlamFilter:
         if self._mu_surface is None:
             f = self.model.generalized_force(ps.q, ps.v, inp.u)
             v_free = ps.v + dt * f * self._inv_mass
-        else:  # implicit support friction linearised at the particle velocity: (P, B, nv, nv)
-            k1 = self.model.support_matrix(ps.q, ps.v, 1.0, velocity_eps=cfg.support_velocity_eps)
-            mu_s = (
-                self._mu_surface[None, :]
-                if self._sub_b is None
-                else self._mu_surface[self._sub_b][:, None]
+        else:  # support friction linearised at the particle velocity (dynamic or quasi-static)
+            mu_s = (  # (B,) or per bank copy (P B, 1)
+                self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            m_eff = self.model.mass_matrix + dt * mu_s[:, :, None, None] * k1[:, None]
-            v_free_b = self.model.free_velocity(ps.q[:, None], ps.v[:, None], inp.u, m_eff)
+            m_eff, v_free_b = self.model.support_terms(
+                ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
+            )
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
@@ -1331,6 +1366,8 @@ class DbcSlamFilter:
             live_hypotheses=live,
             log_likelihood=log_ml,
             resampled=resampled,
+            particle_poses=q,
+            particle_weights=w,
         )
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:

@@ -27,7 +27,11 @@ Scenario keys added here (defaults shown):
   frictionless); `pressure` is the pressure distribution
   ``uniform | rim | vertices | centre | tripod``
   (`geometry.support_points`); `velocity_eps` (m/s) regularises the Coulomb support friction
-  (`PlanarModel.support_matrix`); other numeric keys are kept verbatim).
+  (`PlanarModel.support_matrix`); `model` is the push model ``dynamic`` (default: rigid body
+  with inertia, implicit Coulomb support friction, the object coasts when released) or
+  ``quasi_static`` (no inertia: ellipsoidal limit surface of the pressure distribution, the
+  object moves only while pushed; `PlanarModel`, `dbcslam_core.quasi_static`); other numeric
+  keys are kept verbatim).
 
 ``friction.candidates`` / ``friction.prior`` are either one list shared by all pairs or one
 list per pair. Each obstacle belongs to a friction pair: the pair with the obstacle's name,
@@ -46,16 +50,18 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import yaml
 
 from .errors import ScenarioError
+from .polygon import polygon_inertia
 
 __all__ = [
     "DEFAULT_VELOCITY_EPS",
     "MAX_SCENARIO_BYTES",
     "PRESSURE_MODELS",
+    "PUSH_MODELS",
     "SCENARIO_KINDS",
     "Body",
     "Disk",
@@ -367,6 +373,10 @@ PRESSURE_MODELS: tuple[str, ...] = ("uniform", "rim", "vertices", "centre", "tri
 DEFAULT_VELOCITY_EPS: float = 1e-4
 """Default regularisation speed (m/s) of the support friction (`surface.velocity_eps`)."""
 
+PUSH_MODELS: tuple[str, ...] = ("dynamic", "quasi_static")
+"""Push models (`surface.model`): rigid body with inertia and Coulomb support friction, or
+quasi-static pusher-slider on an ellipsoidal limit surface (see `PlanarModel`)."""
+
 
 @dataclass(frozen=True)
 class SurfaceSpec:
@@ -379,13 +389,20 @@ class SurfaceSpec:
     default `DEFAULT_VELOCITY_EPS`); other numeric keys are kept verbatim. pressure: the
     pressure distribution of the body on the support, one of `PRESSURE_MODELS` (None = not
     given = ``uniform``; kept as None so that YAML without the key round-trips unchanged).
+    model: the push model, one of `PUSH_MODELS` (None = not given = ``dynamic``).
     """
 
     pair: str | None = None
     params: tuple[tuple[str, float], ...] = ()
     pressure: str | None = None
+    model: str | None = None
 
     def __post_init__(self) -> None:
+        if self.model is not None and self.model not in PUSH_MODELS:
+            raise _fail(
+                f"scenario key 'surface.model' must be one of {list(PUSH_MODELS)}, got "
+                f"{self.model!r}"
+            )
         if self.pressure is not None and self.pressure not in PRESSURE_MODELS:
             raise _fail(
                 f"scenario key 'surface.pressure' must be one of {list(PRESSURE_MODELS)}, got "
@@ -401,6 +418,16 @@ class SurfaceSpec:
     def pressure_model(self) -> str:
         """The pressure distribution name (``uniform`` when not given)."""
         return self.pressure if self.pressure is not None else "uniform"
+
+    @property
+    def push_model(self) -> str:
+        """The push model name (``dynamic`` when not given)."""
+        return self.model if self.model is not None else "dynamic"
+
+    @property
+    def quasi_static(self) -> bool:
+        """Whether the push model is ``quasi_static``."""
+        return self.push_model == "quasi_static"
 
     @property
     def mu(self) -> float:
@@ -575,107 +602,19 @@ class Scenario:
         for key in ("scenario", "dt", "body", "contacts", "friction"):
             if key not in data:
                 raise _fail(f"scenario is missing required key '{key}'")
-        kind = data["scenario"]
-        if kind not in SCENARIO_KINDS:
-            raise _fail(
-                f"scenario key 'scenario' must be one of {list(SCENARIO_KINDS)}, got {kind!r}"
-            )
-        for other, keys in _SCENARIO_KEYS.items():
-            if other != kind:
-                for k in keys:
-                    if k in data and k not in _SCENARIO_KEYS[kind]:
-                        raise _fail(
-                            f"key '{k}' belongs to scenario '{other}', not '{kind}'; valid "
-                            f"scenario keys for '{kind}' are {list(_SCENARIO_KEYS[kind])}"
-                        )
-        body_m = _mapping(data["body"], "body")
-        _check_keys(body_m, ["mass", "inertia", "shape"], "body")
-        if "mass" not in body_m:
-            raise _fail("scenario is missing required key 'body.mass'")
-        shape = body_m.get("shape", "point")
-        if shape not in ("point", "polygon"):
-            raise _fail(f"scenario key 'body.shape' must be 'point' or 'polygon', got {shape!r}")
-        raw_verts = data.get("vertices") or []
-        if not isinstance(raw_verts, list | tuple):
-            raise _fail(f"scenario key 'vertices' must be a list of [x, y], got {raw_verts!r}")
-        verts: list[tuple[float, float]] = []
-        for i, v in enumerate(raw_verts):
-            if not isinstance(v, list | tuple) or len(v) != 2:
-                raise _fail(f"scenario key 'vertices[{i}]' must be [x, y], got {v!r}")
-            verts.append((_float(v[0], f"vertices[{i}][0]"), _float(v[1], f"vertices[{i}][1]")))
-        mass = _float(body_m["mass"], "body.mass", positive=True)
-        if "inertia" in body_m or shape == "point" or len(verts) < 3:
-            inertia = _float(body_m.get("inertia", 0.0), "body.inertia", nonneg=True)
-        else:  # polygon without inertia: uniform density about the body origin
-            inertia = abs(_uniform_inertia(verts, mass))
-        body = Body(mass=mass, inertia=inertia, shape=shape, vertices=tuple(verts))
-        fr = _mapping(data["friction"], "friction")
-        _check_keys(fr, ["pairs", "candidates", "prior", "obstacles"], "friction")
-        for key in ("pairs", "candidates"):
-            if key not in fr:
-                raise _fail(f"scenario is missing required key 'friction.{key}'")
-        pairs = _str_list(fr["pairs"], "friction.pairs")
-        cands = _per_pair(fr["candidates"], pairs, "friction.candidates")
-        if "prior" in fr and fr["prior"] is not None:
-            prior = _per_pair(fr["prior"], pairs, "friction.prior")
-        else:
-            prior = tuple(tuple(1.0 / len(cs) for _ in cs) for cs in cands)
-        obst_map = _mapping(fr.get("obstacles"), "friction.obstacles")
-        friction = FrictionSpec(
-            pairs,
-            cands,
-            prior,
-            tuple(sorted((k, _str(v, f"friction.obstacles.{k}")) for k, v in obst_map.items())),
-        )
+        kind = _parse_kind(data)
         noise_m = _mapping(data.get("noise"), "noise")
         _check_keys(noise_m, ["position", "yaw", "joint"], "noise")
         noise = NoiseSpec(**{k: _float(v, f"noise.{k}", nonneg=True) for k, v in noise_m.items()})
-        kwargs: dict[str, Any] = {}
-        if kind == "edge":
-            edge_m = _mapping(data.get("edge"), "edge")
-            _check_keys(edge_m, ["y"], "edge")
-            kwargs["edge_y"] = _float(edge_m.get("y", 0.0), "edge.y")
-        elif kind == "gripper":
-            jaws_m = _mapping(data.get("jaws"), "jaws")
-            _check_keys(jaws_m, ["lower_joint", "upper_joint"], "jaws")
-            kwargs["lower_joint"] = _str(
-                jaws_m.get("lower_joint", "lower_jaw"), "jaws.lower_joint"
-            )
-            kwargs["upper_joint"] = _str(
-                jaws_m.get("upper_joint", "upper_jaw"), "jaws.upper_joint"
-            )
-        else:
-            pm = _mapping(data.get("pusher"), "pusher")
-            _check_keys(pm, ["radius", "joint_x", "joint_y"], "pusher")
-            kwargs["pusher_radius"] = _float(
-                pm.get("radius", 0.01), "pusher.radius", positive=True
-            )
-            kwargs["pusher_joint_x"] = _str(pm.get("joint_x", "pusher_x"), "pusher.joint_x")
-            kwargs["pusher_joint_y"] = _str(pm.get("joint_y", "pusher_y"), "pusher.joint_y")
-            sm = _mapping(data.get("surface"), "surface")
-            pair = sm.get("pair")
-            if pair is not None:
-                pair = _str(pair, "surface.pair")
-            pressure = sm.get("pressure")
-            if pressure is not None:
-                pressure = _str(pressure, "surface.pressure")
-            params = tuple(
-                sorted(
-                    (k, _float(v, f"surface.{k}"))
-                    for k, v in sm.items()
-                    if k not in ("pair", "pressure")
-                )
-            )
-            kwargs["surface"] = SurfaceSpec(pair, params, pressure)
         return cls(
             kind=kind,
             dt=_float(data["dt"], "dt", positive=True),
             gravity=_float(data.get("gravity", 9.81), "gravity", nonneg=True),
-            body=body,
+            body=_parse_body(data),
             contacts=_str_list(data["contacts"], "contacts"),
-            friction=friction,
+            friction=_parse_friction(data["friction"]),
             noise=noise,
-            **kwargs,
+            **_parse_kind_keys(kind, data),
         )
 
     @classmethod
@@ -748,6 +687,8 @@ class Scenario:
             surface: dict[str, Any] = {"pair": self.surface.pair}
             if self.surface.pressure is not None:
                 surface["pressure"] = self.surface.pressure
+            if self.surface.model is not None:
+                surface["model"] = self.surface.model
             surface.update(dict(self.surface.params))
             out["surface"] = surface
         return out
@@ -840,18 +781,18 @@ def push_scenario(
     support_mu: float | None = None,
     pressure: str | None = None,
     velocity_eps: float | None = None,
+    model: str | None = None,
 ) -> Scenario:
     """A pushed polygon (outline about its centre of mass) and a disk pusher.
 
     inertia defaults to the uniform-density polar moment of the outline about the origin.
     support_pair: name of the support friction pair (estimated; second pair after
     ``pusher``); support_mu: known support coefficient (``surface.mu``, used without a pair);
-    pressure: ``surface.pressure``; velocity_eps: ``surface.velocity_eps`` (m/s).
+    pressure: ``surface.pressure``; velocity_eps: ``surface.velocity_eps`` (m/s); model:
+    ``surface.model`` (`PUSH_MODELS`).
     """
     verts = tuple((float(v[0]), float(v[1])) for v in vertices)
     if inertia is None:
-        from .geometry import polygon_inertia
-
         inertia = polygon_inertia(verts, mass)
     pairs: tuple[str, ...] = ("pusher",) if support_pair is None else ("pusher", support_pair)
     cands = tuple(float(c) for c in candidates)
@@ -878,5 +819,108 @@ def push_scenario(
                 )
             ),
             pressure,
+            model,
         ),
     )
+
+
+def _parse_kind(data: Mapping[str, Any]) -> ScenarioKind:
+    """The scenario kind; keys of other kinds are refused."""
+    kind = data["scenario"]
+    if kind not in SCENARIO_KINDS:
+        raise _fail(f"scenario key 'scenario' must be one of {list(SCENARIO_KINDS)}, got {kind!r}")
+    for other, keys in _SCENARIO_KEYS.items():
+        if other != kind:
+            for k in keys:
+                if k in data and k not in _SCENARIO_KEYS[kind]:
+                    raise _fail(
+                        f"key '{k}' belongs to scenario '{other}', not '{kind}'; valid "
+                        f"scenario keys for '{kind}' are {list(_SCENARIO_KEYS[kind])}"
+                    )
+    return cast("ScenarioKind", kind)
+
+
+def _parse_body(data: Mapping[str, Any]) -> Body:
+    """`body` (mass kg, inertia kg m^2, shape) and `vertices` (m, body frame)."""
+    body_m = _mapping(data["body"], "body")
+    _check_keys(body_m, ["mass", "inertia", "shape"], "body")
+    if "mass" not in body_m:
+        raise _fail("scenario is missing required key 'body.mass'")
+    shape = body_m.get("shape", "point")
+    if shape not in ("point", "polygon"):
+        raise _fail(f"scenario key 'body.shape' must be 'point' or 'polygon', got {shape!r}")
+    raw_verts = data.get("vertices") or []
+    if not isinstance(raw_verts, list | tuple):
+        raise _fail(f"scenario key 'vertices' must be a list of [x, y], got {raw_verts!r}")
+    verts: list[tuple[float, float]] = []
+    for i, v in enumerate(raw_verts):
+        if not isinstance(v, list | tuple) or len(v) != 2:
+            raise _fail(f"scenario key 'vertices[{i}]' must be [x, y], got {v!r}")
+        verts.append((_float(v[0], f"vertices[{i}][0]"), _float(v[1], f"vertices[{i}][1]")))
+    mass = _float(body_m["mass"], "body.mass", positive=True)
+    if "inertia" in body_m or shape == "point" or len(verts) < 3:
+        inertia = _float(body_m.get("inertia", 0.0), "body.inertia", nonneg=True)
+    else:  # polygon without inertia: uniform density about the body origin
+        inertia = abs(_uniform_inertia(verts, mass))
+    return Body(mass=mass, inertia=inertia, shape=shape, vertices=tuple(verts))
+
+
+def _parse_friction(raw: Any) -> FrictionSpec:
+    """`friction`: pairs, candidates (one list or one per pair), prior, obstacles."""
+    fr = _mapping(raw, "friction")
+    _check_keys(fr, ["pairs", "candidates", "prior", "obstacles"], "friction")
+    for key in ("pairs", "candidates"):
+        if key not in fr:
+            raise _fail(f"scenario is missing required key 'friction.{key}'")
+    pairs = _str_list(fr["pairs"], "friction.pairs")
+    cands = _per_pair(fr["candidates"], pairs, "friction.candidates")
+    if "prior" in fr and fr["prior"] is not None:
+        prior = _per_pair(fr["prior"], pairs, "friction.prior")
+    else:
+        prior = tuple(tuple(1.0 / len(cs) for _ in cs) for cs in cands)
+    obst_map = _mapping(fr.get("obstacles"), "friction.obstacles")
+    return FrictionSpec(
+        pairs,
+        cands,
+        prior,
+        tuple(sorted((k, _str(v, f"friction.obstacles.{k}")) for k, v in obst_map.items())),
+    )
+
+
+def _parse_kind_keys(kind: str, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The keys of one scenario kind: edge `edge.y`; gripper `jaws`; push `pusher` and
+    `surface`."""
+    kwargs: dict[str, Any] = {}
+    if kind == "edge":
+        edge_m = _mapping(data.get("edge"), "edge")
+        _check_keys(edge_m, ["y"], "edge")
+        kwargs["edge_y"] = _float(edge_m.get("y", 0.0), "edge.y")
+    elif kind == "gripper":
+        jaws_m = _mapping(data.get("jaws"), "jaws")
+        _check_keys(jaws_m, ["lower_joint", "upper_joint"], "jaws")
+        kwargs["lower_joint"] = _str(jaws_m.get("lower_joint", "lower_jaw"), "jaws.lower_joint")
+        kwargs["upper_joint"] = _str(jaws_m.get("upper_joint", "upper_jaw"), "jaws.upper_joint")
+    else:
+        pm = _mapping(data.get("pusher"), "pusher")
+        _check_keys(pm, ["radius", "joint_x", "joint_y"], "pusher")
+        kwargs["pusher_radius"] = _float(pm.get("radius", 0.01), "pusher.radius", positive=True)
+        kwargs["pusher_joint_x"] = _str(pm.get("joint_x", "pusher_x"), "pusher.joint_x")
+        kwargs["pusher_joint_y"] = _str(pm.get("joint_y", "pusher_y"), "pusher.joint_y")
+        kwargs["surface"] = _parse_surface(_mapping(data.get("surface"), "surface"))
+    return kwargs
+
+
+def _parse_surface(sm: Mapping[str, Any]) -> SurfaceSpec:
+    """`surface` of a push: friction pair, pressure distribution, motion model, numbers."""
+    named: dict[str, str | None] = {}
+    for key in ("pair", "pressure", "model"):
+        value = sm.get(key)
+        named[key] = None if value is None else _str(value, f"surface.{key}")
+    params = tuple(
+        sorted(
+            (k, _float(v, f"surface.{k}"))
+            for k, v in sm.items()
+            if k not in ("pair", "pressure", "model")
+        )
+    )
+    return SurfaceSpec(named["pair"], params, named["pressure"], named["model"])

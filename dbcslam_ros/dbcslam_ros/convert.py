@@ -23,11 +23,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from dbcslam_core.angles import quaternion_to_yaw as core_quaternion_to_yaw
+from dbcslam_core.angles import yaw_to_quaternion
 from dbcslam_core.contact_modes import MODE_NAMES
 from dbcslam_core.parameters import FrictionMapView
 from dbcslam_core.rbpf import Estimate
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.contract import CONTACT_MODES, FRICTION, FRICTION_MAP, ODOMETRY, POSE
 from dbcslam_ros.errors import DbcSlamRosError
 
 __all__ = [
@@ -107,11 +110,6 @@ def ns_to_stamp(ns: int) -> Any:
     return time_cls(sec=int(ns // NS), nanosec=int(ns % NS))
 
 
-def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
-    """Yaw about +z (rad) -> quaternion (x, y, z, w)."""
-    return (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
-
-
 def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
     """Quaternion -> yaw about +z (rad, in (-pi, pi]); rejects zero or non-finite quaternions."""
     values = (x, y, z, w)
@@ -124,7 +122,7 @@ def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
     if norm < 1e-9:
         raise InputRejected("zero_quaternion", f"quaternion {values} has zero norm")
     x, y, z, w = (v / norm for v in values)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return core_quaternion_to_yaw(x, y, z, w)
 
 
 def _finite(reason_where: str, values: Sequence[float]) -> None:
@@ -292,21 +290,10 @@ def estimate_messages(
     Never emits NaN: a non-finite estimate raises ValueError (the node then skips publishing
     and counts it), because a silently wrong estimate is worse than a missing one.
     """
-    for name, arr in (
-        ("pose", est.pose),
-        ("pose_cov", est.pose_cov),
-        ("twist", est.twist),
-        ("twist_cov", est.twist_cov),
-        ("modes", est.modes),
-        ("friction", est.friction),
-    ):
-        if not np.all(np.isfinite(arr)):
-            msg = f"estimate field {name} has non-finite values at step {est.step}"
-            raise ValueError(msg)
-    for pair, probs in enumerate(est.friction_map.probs):
-        if not np.all(np.isfinite(probs)):
-            msg = f"friction map of pair {pair} has non-finite values at step {est.step}"
-            raise ValueError(msg)
+    bad = est.non_finite_field()
+    if bad is not None:
+        msg = f"estimate field {bad} has non-finite values at step {est.step}"
+        raise ValueError(msg)
     x, y, yaw = (float(v) for v in est.pose)
     pwc_cls = rt.message_class("geometry_msgs/msg/PoseWithCovarianceStamped")
     pwc = rt.message_class("geometry_msgs/msg/PoseWithCovariance")
@@ -329,9 +316,9 @@ def estimate_messages(
     )
     assert len(MODE_NAMES) == est.modes.shape[1]
     return {
-        "/dbcslam/pose": pose,
-        "/dbcslam/odometry": odom,
-        "/dbcslam/contact_modes": float64_multiarray(est.modes, ("contacts", "modes")),
-        "/dbcslam/friction": float64_multiarray(est.friction, ("pairs", "candidates")),
-        "/dbcslam/friction_map": friction_map_grid(est.friction_map, scenario, stamp_ns, frame_id),
+        POSE: pose,
+        ODOMETRY: odom,
+        CONTACT_MODES: float64_multiarray(est.modes, ("contacts", "modes")),
+        FRICTION: float64_multiarray(est.friction, ("pairs", "candidates")),
+        FRICTION_MAP: friction_map_grid(est.friction_map, scenario, stamp_ns, frame_id),
     }

@@ -12,7 +12,6 @@ __all__ = [
     "DbcSlamRosError",
     "MessageTypeError",
     "ParameterError",
-    "RuntimeBackendError",
     "UsageError",
 ]
 
@@ -23,10 +22,6 @@ class DbcSlamRosError(Exception):
 
 class UsageError(DbcSlamRosError):
     """Bad command line usage or bad user input (CLI exit code 2)."""
-
-
-class RuntimeBackendError(DbcSlamRosError):
-    """The middleware (rclpy / the RMW) cannot do what was asked."""
 
 
 class MessageTypeError(DbcSlamRosError):

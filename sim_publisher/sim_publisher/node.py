@@ -38,6 +38,18 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
 from dbcslam_core.scenario import Scenario
+from dbcslam_ros.contract import (
+    JOINT_STATES,
+    OBJECT_POSE,
+    OBJECT_WRENCH,
+    PUSHER_WRENCH,
+    SCENARIO,
+    TOPICS,
+    TRUTH_CONTACT_MODES,
+    TRUTH_FRICTION,
+    TRUTH_POSE,
+    TRUTH_TOPICS,
+)
 
 __all__ = ["ENGINES", "PARAMETERS", "SimNode", "Tick", "TickSource", "main", "make_source"]
 
@@ -248,33 +260,13 @@ class SimNode(Node):
         reliable = rt.qos_profile(
             "default", depth=max(100, self.source.n_ticks + 1) if self.fast else 100
         )
-        self.pubs: dict[str, Any] = {
-            "/scenario": node.create_publisher(
-                cls("std_msgs/msg/String"), "/scenario", rt.qos_profile("latched")
-            ),
-            "/joint_states": node.create_publisher(
-                cls("sensor_msgs/msg/JointState"), "/joint_states", sensor
-            ),
-            "/object/wrench": node.create_publisher(
-                cls("geometry_msgs/msg/WrenchStamped"), "/object/wrench", sensor
-            ),
-            "/object/pose": node.create_publisher(
-                cls("geometry_msgs/msg/PoseStamped"), "/object/pose", sensor
-            ),
-            "/truth/object/pose": node.create_publisher(
-                cls("geometry_msgs/msg/PoseStamped"), "/truth/object/pose", reliable
-            ),
-            "/truth/contact_modes": node.create_publisher(
-                cls("std_msgs/msg/Float64MultiArray"), "/truth/contact_modes", reliable
-            ),
-            "/truth/friction": node.create_publisher(
-                cls("std_msgs/msg/Float64MultiArray"), "/truth/friction", reliable
-            ),
-        }
+        qos = {"sensor_data": sensor, "default": reliable, "latched": rt.qos_profile("latched")}
+        topics = [SCENARIO, JOINT_STATES, OBJECT_WRENCH, OBJECT_POSE, *TRUTH_TOPICS]
         if self.source.scenario.kind == "push":
-            self.pubs["/pusher/wrench"] = node.create_publisher(
-                cls("geometry_msgs/msg/WrenchStamped"), "/pusher/wrench", sensor
-            )
+            topics.append(PUSHER_WRENCH)
+        self.pubs: dict[str, Any] = {
+            t: node.create_publisher(cls(TOPICS[t].type), t, qos[TOPICS[t].qos]) for t in topics
+        }
         if self.fast:
             self.pubs["/clock"] = node.create_publisher(
                 cls("rosgraph_msgs/msg/Clock"), "/clock", rt.qos_profile("clock")
@@ -285,7 +277,7 @@ class SimNode(Node):
     def publish_scenario(self) -> None:
         """Publish the latched a-priori model."""
         string = self.rt.message_class("std_msgs/msg/String")
-        self.pubs["/scenario"].publish(string(data=self.source.scenario_yaml))
+        self.pubs[SCENARIO].publish(string(data=self.source.scenario_yaml))
 
     def wait_for_subscribers(self) -> None:
         """Wait (bounded by `wait_for_subscribers` s) until /object/pose has
@@ -295,7 +287,7 @@ class SimNode(Node):
             return
         wanted = max(1, int(self.params["min_subscribers"]))
         deadline = time.monotonic() + limit
-        pub = self.pubs["/object/pose"]
+        pub = self.pubs[OBJECT_POSE]
         while time.monotonic() < deadline and pub.get_subscription_count() < wanted:
             self.rt.spin_once(self, timeout_sec=0.02)  # raises on SIGINT/SIGTERM
         if pub.get_subscription_count() > 0:
@@ -338,7 +330,7 @@ class SimNode(Node):
                 if delay > 0.0:
                     time.sleep(delay)
             header = header_cls(stamp=ns_to_stamp(stamp_ns), frame_id=self.frame)
-            self.pubs["/joint_states"].publish(
+            self.pubs[JOINT_STATES].publish(
                 joint_cls(
                     header=header,
                     name=names,
@@ -348,26 +340,26 @@ class SimNode(Node):
                 )
             )
             fx, fy, tau = (float(v) for v in tick.wrench)
-            self.pubs["/object/wrench"].publish(
+            self.pubs[OBJECT_WRENCH].publish(
                 wrench_stamped(stamp_ns, fx, fy, tau, frame_id=self.frame)
             )
-            if tick.pusher_wrench is not None and "/pusher/wrench" in self.pubs:
+            if tick.pusher_wrench is not None and PUSHER_WRENCH in self.pubs:
                 px, py, ptau = (float(v) for v in tick.pusher_wrench)
-                self.pubs["/pusher/wrench"].publish(
+                self.pubs[PUSHER_WRENCH].publish(
                     wrench_stamped(stamp_ns, px, py, ptau, frame_id=self.frame)
                 )
             ox, oy, oyaw = (float(v) for v in tick.observed_pose)
-            self.pubs["/object/pose"].publish(
+            self.pubs[OBJECT_POSE].publish(
                 pose_stamped(stamp_ns, ox, oy, oyaw, frame_id=self.frame)
             )
             tx, ty, tyaw = (float(v) for v in tick.pose)
-            self.pubs["/truth/object/pose"].publish(
+            self.pubs[TRUTH_POSE].publish(
                 pose_stamped(stamp_ns, tx, ty, tyaw, frame_id=self.frame)
             )
-            self.pubs["/truth/contact_modes"].publish(
+            self.pubs[TRUTH_CONTACT_MODES].publish(
                 float64_multiarray(tick.modes, ("contacts", "modes"))
             )
-            self.pubs["/truth/friction"].publish(float64_multiarray(tick.friction, ("pairs",)))
+            self.pubs[TRUTH_FRICTION].publish(float64_multiarray(tick.friction, ("pairs",)))
             self.published += 1
         self.flush()
         self.log.info(f"done: {self.published} samples published")
@@ -375,7 +367,7 @@ class SimNode(Node):
     def flush(self, timeout_sec: float = 3.0) -> None:
         """Wait (bounded) until reliable subscribers acknowledged all samples."""
         rt = self.rt
-        for topic in ("/truth/object/pose", "/truth/contact_modes", "/truth/friction"):
+        for topic in (TRUTH_POSE, TRUTH_CONTACT_MODES, TRUTH_FRICTION):
             pub = self.pubs[topic]
             wait = getattr(pub, "wait_for_all_acked", None)
             if wait is not None:

@@ -8,12 +8,13 @@ reduced to its strictly convex hull (the pybullet collision shape is that hull).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
+from dbcslam_core.polygon import convex_hull
 
 from .errors import ParamError
 
@@ -54,30 +55,6 @@ class Outline:
     area: float
     mass: float
     inertia: float
-
-
-def _hull(points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Strictly convex hull, counter-clockwise (monotone chain, collinear points dropped)."""
-    pts = sorted({(float(x), float(y)) for x, y in points})
-    if len(pts) < 3:
-        return np.asarray(pts, dtype=np.float64)
-    scale = max(math.hypot(x, y) for x, y in pts)
-    tol = 1e-10 * scale * scale
-
-    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple[float, float]] = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= tol:
-            lower.pop()
-        lower.append(p)
-    upper: list[tuple[float, float]] = []
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= tol:
-            upper.pop()
-        upper.append(p)
-    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
 def _area_centroid(v: NDArray[np.float64]) -> tuple[float, float, float]:
@@ -127,7 +104,7 @@ def load_outline(
     if raw.ndim != 2 or raw.shape[1] != 2 or raw.shape[0] < 3 or not np.all(np.isfinite(raw)):
         msg = f"outline file {path} must hold a finite (n >= 3, 2) array, got shape {raw.shape}"
         raise ParamError(msg)
-    hull = _hull(np.asarray(raw, dtype=np.float64))
+    hull = convex_hull(np.asarray(raw, dtype=np.float64))
     if len(hull) < 3:
         msg = f"outline file {path} is degenerate (fewer than 3 hull vertices)"
         raise ParamError(msg)

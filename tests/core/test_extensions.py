@@ -30,6 +30,7 @@ def test_vocabulary_matches_contract() -> None:
         "sensor_bias",
         "support_friction",
         "support_pressure",
+        "support_concentration",  # push: limit-surface c (scenario-specific, documented)
         "none",
     }
 

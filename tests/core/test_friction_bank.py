@@ -35,9 +35,9 @@ def _run(
     return out, filt
 
 
-def test_bank_is_the_default_of_time_invariant_presets_only() -> None:
+def test_bank_is_the_default_of_the_gripper_preset_only() -> None:
     assert FilterConfig.preset("gripper").friction_bank
-    assert FilterConfig.preset("push").friction_bank
+    assert not FilterConfig.preset("push").friction_bank
     assert not FilterConfig.preset("edge").friction_bank
     with pytest.raises(ModelError, match="friction_bank needs the time-invariant"):
         FilterConfig.preset("edge", friction_bank=True)
@@ -110,3 +110,32 @@ def test_resampling_moves_a_particles_copies_together() -> None:
     assert ps.bank is not None
     assert ps.bank[:, 0].tolist() == [6, 6, 0, 9]
     assert ps.count == 4 and ps.size == 12
+
+
+def test_bank_fixes_the_collapse_of_the_single_copy_filter() -> None:
+    """At 40 particles, initial spread 2 mm / 2 mrad (pose and yaw), the single-copy filter
+    ends confidently on a wrong jaw friction in seeds 0 and 1 (each particle's belief turns
+    one-hot at an impact, resampling on pose spreads one label); the bank ends on the true
+    mu = 0.4 in every seed. Not asserted, measured: with the yaw spread at the yaw noise
+    (`_run`) the bank ends right in 3 of seeds 0-4 and the single-copy filter in 4."""
+    traj = gripper_trajectory(1, duration=3.0)
+    sc = traj.scenario
+    true_k = sc.friction.candidates[0].index(float(traj.mu[-1].max()))
+
+    def final_p(cfg: FilterConfig, seed: int) -> float:
+        filt = DbcSlamFilter(sc, cfg, np.random.default_rng(seed))
+        filt.initialize(traj.obs[0], [sc.noise.position] * 3, joints=traj.env_obs[0])
+        for k in range(traj.n_steps - 1):
+            o = traj.obs[k + 1]
+            est = filt.step(
+                PoseObservation(float(o[0]), float(o[1]), float(o[2])),
+                FilterInput(tuple(traj.u[k]), tuple(traj.env_obs[k + 1])),
+            )
+        return float(est.friction[0, true_k])
+
+    collapsed = 0
+    for seed in range(3):
+        cfg = FilterConfig.preset("gripper", particles=40)
+        collapsed += int(final_p(replace(cfg, friction_bank=False), seed) < 0.01)
+        assert final_p(cfg, seed) > 0.9, seed
+    assert collapsed >= 1

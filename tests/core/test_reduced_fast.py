@@ -10,6 +10,8 @@ by construction: their impulses only agree to ~cond * eps, their velocities clos
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -21,6 +23,7 @@ from dbcslam_core.contact_modes import (
     ContactLayout,
     Mode,
     _solve_small,
+    enumerate_hypotheses,
     geometric_feasible,
     solve_reduced,
 )
@@ -83,6 +86,22 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return np.asarray((rows <= 3) & geometric_feasible(layout, modes, phi))
 
 
+def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
+    """Two reduced solutions agree on the elements ok (impulse scale lam, N s)."""
+    assert ok.any()
+    for f in ("v_next", "response", "gap_rate", "vt"):
+        np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
+    for f in ("ln", "lt"):
+        err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
+        assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
+    np.testing.assert_allclose(new.score[ok], ref.score[ok], rtol=1e-8, atol=1e-9)
+    if ref.impulse_response is not None:
+        assert new.impulse_response is not None
+        np.testing.assert_allclose(
+            new.impulse_response[ok], ref.impulse_response[ok], rtol=1e-7, atol=1e-7
+        )
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.25, 0.5]))
@@ -98,18 +117,7 @@ def test_solve_reduced_matches_padded_reference(backend: str, seed: int, p_conta
         # G M^-1 F^T ~ singular) give impulses of ~1e9 N s and are round-off dominated in
         # both implementations (the filter's proposal rejects them: v' ~ 1e3 m/s)
         ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
-        for f in ("v_next", "response", "gap_rate", "vt"):
-            np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
-        for f in ("ln", "lt"):
-            err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
-            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
-        np.testing.assert_allclose(new.score[ok], ref.score[ok], rtol=1e-8, atol=1e-9)
-        assert ok.any()
-        if sens:
-            assert new.impulse_response is not None and ref.impulse_response is not None
-            np.testing.assert_allclose(
-                new.impulse_response[ok], ref.impulse_response[ok], rtol=1e-7, atol=1e-7
-            )
+        _assert_agree(new, ref, ok, lam)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -167,18 +175,7 @@ def test_compiled_backend_equals_numpy_backend(seed: int, p_contact: float) -> N
         )
         lam = np.abs(a.ln).max(-1) + np.abs(a.lt).max(-1)
         ok = np.broadcast_to(_well_posed(args[0], kwargs["phi"]), lam.shape) & (lam < 1e3)
-        assert ok.any()
-        for f in ("v_next", "response", "gap_rate", "vt"):
-            np.testing.assert_allclose(getattr(b, f)[ok], getattr(a, f)[ok], atol=1e-9)
-        for f in ("ln", "lt"):
-            err = np.abs(getattr(a, f) - getattr(b, f)).max(-1)
-            assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
-        np.testing.assert_allclose(b.score[ok], a.score[ok], rtol=1e-8, atol=1e-9)
-        if sens:
-            assert a.impulse_response is not None and b.impulse_response is not None
-            np.testing.assert_allclose(
-                b.impulse_response[ok], a.impulse_response[ok], rtol=1e-7, atol=1e-7
-            )
+        _assert_agree(b, a, ok, lam)
 
 
 @pytest.mark.parametrize("sens", [False, True])
@@ -320,3 +317,45 @@ def test_compiled_proposal_equals_numpy_proposal(seed: int, n: int) -> None:
     ]
     for a, b in zip(out[0], out[1], strict=True):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    threshold=st.sampled_from([1e-3, 1e-2, 0.05]),
+    max_h=st.sampled_from([4, 8, 32]),
+    n_p=st.sampled_from([3, 40]),
+)
+def test_compiled_enumeration_equals_numpy(
+    seed: int, threshold: float, max_h: int, n_p: int
+) -> None:
+    """The compiled hypothesis enumeration keeps the same hypotheses in the same order as
+    the numpy path (continuous random marginals: no exact ties), with the gripper's
+    geometric exclusions and gaps."""
+    rng = np.random.default_rng(seed)
+    layout = ContactLayout(
+        feature_vertex=tuple(c.vertex for c in GRIPPER.potential_contacts),
+        obstacle=tuple(c.obstacle for c in GRIPPER.potential_contacts),
+        n_vertices=len(GRIPPER.body.vertices),
+    )
+    c = len(GRIPPER.potential_contacts)
+    mg = rng.dirichlet(np.full(4, 0.3), size=(n_p, c))
+    phi = rng.uniform(-1e-3, 3e-3, size=(n_p, c))
+    out = [
+        enumerate_hypotheses(mg, threshold, max_h, layout=layout, phi=phi, compiled=flag)
+        for flag in (False, True)
+    ]
+    np.testing.assert_array_equal(out[1].valid, out[0].valid)
+    np.testing.assert_array_equal(out[1].modes[out[0].valid], out[0].modes[out[0].valid])
+    np.testing.assert_array_equal(out[1].log_prior, out[0].log_prior)
+
+
+def test_compiled_enumeration_truncated_path_keeps_the_most_probable() -> None:
+    """Many particles and contacts (the argpartition pre-selection of the numpy path): the
+    same hypotheses when there are no ties."""
+    rng = np.random.default_rng(5)
+    mg = rng.dirichlet(np.full(4, 1.0), size=(800, 6))
+    a, b = (enumerate_hypotheses(mg, 1e-3, 32, compiled=flag) for flag in (False, True))
+    np.testing.assert_array_equal(b.valid, a.valid)
+    np.testing.assert_array_equal(b.modes[a.valid], a.modes[a.valid])
+    np.testing.assert_array_equal(b.log_prior, a.log_prior)

@@ -59,7 +59,7 @@ def test_package_xml_is_format_3_ament_python(pkg: str) -> None:
 def test_core_depends_on_no_ros_package() -> None:
     root = ET.parse(REPO / "dbcslam_core" / "package.xml").getroot()
     deps = {e.text for e in root.iter("exec_depend")}
-    assert deps <= {"python3-numpy", "python3-scipy", "python3-yaml"}
+    assert deps <= {"python3-numpy", "python3-scipy", "python3-yaml", "python3-numba"}
 
 
 @pytest.mark.parametrize("pkg", PACKAGES)

@@ -7,7 +7,9 @@ in the fixture finalizer even when the test fails.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -21,6 +23,48 @@ from typing import Any
 import pytest
 
 from dbcslam_ros import runtime as rt
+from dbcslam_ros.network import NETWORK_MODE_VAR, PROFILE_VARS
+
+
+def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> int:
+    """Stop one started process by PID: SIGTERM, wait ``timeout`` s, then SIGKILL; returns
+    the exit code (at once if it has already exited)."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGTERM)
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(proc.pid, signal.SIGKILL)
+    return proc.wait(5)
+
+
+def _isolated_env(*drop: str) -> dict[str, str]:
+    """This environment without the network variables of :mod:`dbcslam_ros.network` (and
+    ``drop``), on a random ROS domain of its own, unbuffered output."""
+    env = dict(os.environ)
+    for var in (*PROFILE_VARS, NETWORK_MODE_VAR, *drop):
+        env.pop(var, None)
+    env["ROS_DOMAIN_ID"] = str(random.Random().randint(120, 200))
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+@pytest.fixture
+def isolated_env() -> Callable[..., dict[str, str]]:
+    """``isolated_env(*drop)``: the environment for a started node (see :func:`_isolated_env`)."""
+    return _isolated_env
+
+
+@pytest.fixture
+def processes() -> Iterator[list[subprocess.Popen[bytes]]]:
+    """A list to append started processes to; each is stopped by PID (SIGTERM, then SIGKILL)
+    at teardown, even when the test fails."""
+    procs: list[subprocess.Popen[bytes]] = []
+    yield procs
+    for proc in procs:
+        stop_process(proc, 8.0)
 
 
 @dataclass
@@ -52,13 +96,7 @@ class NodeProcess:
 
     def terminate(self, timeout: float = 10.0) -> int:
         """SIGTERM and wait; returns the exit code (SIGKILL after ``timeout``)."""
-        if self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGTERM)
-        try:
-            return self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            os.kill(self.proc.pid, signal.SIGKILL)
-            return self.proc.wait(5)
+        return stop_process(self.proc, timeout)
 
 
 class ProcessGroup:
@@ -87,13 +125,7 @@ class ProcessGroup:
     def stop_all(self) -> None:
         """SIGTERM every process still running (SIGKILL after 5 s), by PID."""
         for np in self.started:
-            if np.proc.poll() is None:
-                try:
-                    os.kill(np.pid, signal.SIGTERM)
-                    np.proc.wait(5)
-                except (subprocess.TimeoutExpired, ProcessLookupError):
-                    os.kill(np.pid, signal.SIGKILL)
-                    np.proc.wait(5)
+            stop_process(np.proc, 5.0)
 
 
 @pytest.fixture

@@ -369,7 +369,7 @@ def _runtime_messages() -> list[tuple[str, Any]]:
     """(topic, runtime message object) for every topic of the contract, with content."""
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.convert import float64_multiarray, pose_stamped, wrench_stamped
-    from dbcslam_ros.filter_node import OUTPUT_TYPES
+    from dbcslam_ros.node.filter_node import OUTPUT_TYPES
 
     cls = rt.message_class
     header = cls("std_msgs/msg/Header")

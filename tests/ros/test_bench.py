@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from dbcslam_ros.bench import reading_lines, render_markdown
+from dbcslam_research.bench import reading_lines, render_markdown
 
 
 def _row(scenario: str, particles: int, dbc: float, lemke: float, pgs: float) -> dict[str, Any]:
@@ -63,5 +63,5 @@ def test_markdown_contains_reading() -> None:
             "steps": 40,
         },
     }
-    md = render_markdown(result, "python -m dbcslam_ros.bench")
+    md = render_markdown(result, "python -m dbcslam_research.bench")
     assert "**Reading the table.**" in md and "5.0x faster" in md

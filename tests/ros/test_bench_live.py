@@ -1,4 +1,4 @@
-"""dbcslam_ros.bench_live: the live benchmark (one short live run, offline CPU time, output).
+"""dbcslam_research.bench_live: the live benchmark (one short live run, offline CPU time, output).
 
 The live run uses the core engine (fast to start) for 0.5 s; nothing is asserted about speed
 (that is what the benchmark reports), only that the measurement is complete and consistent.
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros import bench_live as bl
+from dbcslam_research import bench_live as bl
 from dbcslam_ros import runtime as rt
 
 

@@ -13,15 +13,11 @@ from hypothesis import strategies as st
 
 from dbcslam_ros.bag import LATCHED_QOS, RELIABLE_QOS, SENSOR_DATA_QOS, jazzy_typestore, make_qos
 from dbcslam_ros.bag.qos import qos_from_yaml, qos_to_dicts, qos_to_yaml_string
-from dbcslam_ros.cli._common import (
-    bag_qos_to_runtime,
-    runtime_qos_to_bag,
-    subscription_qos_for,
-)
+from dbcslam_ros.cli._common import bag_qos_to_runtime, subscription_qos_for
 from dbcslam_ros.cli._format import message_to_yaml, select_field
 from dbcslam_ros.cli.commands.play import _publish_clock
 from dbcslam_ros.errors import BagError, UsageError
-from dbcslam_ros.runtime.qos import PROFILES, QoSProfile
+from dbcslam_ros.qos import PROFILES, QoSProfile, to_bag_qos
 
 
 def _t(name: str) -> Any:
@@ -129,7 +125,7 @@ def test_playback_qos_keeps_latching_and_reliability_of_the_recording() -> None:
 @pytest.mark.parametrize("name", sorted(PROFILES))
 def test_runtime_and_bag_qos_convert_both_ways(name: str) -> None:
     prof = PROFILES[name]
-    assert bag_qos_to_runtime([runtime_qos_to_bag(prof)]) == prof
+    assert bag_qos_to_runtime([to_bag_qos(prof)]) == prof
 
 
 def test_subscription_qos_is_compatible_with_every_publisher() -> None:
@@ -138,7 +134,8 @@ def test_subscription_qos_is_compatible_with_every_publisher() -> None:
     assert subscription_qos_for([rel, be]).reliability == "best_effort"
     assert subscription_qos_for([tl]).durability == "transient_local"
     assert subscription_qos_for([tl, rel]).durability == "volatile"
-    assert subscription_qos_for([]).reliability == "best_effort"
+    # no publisher yet: the rosbag2 default (reliable), the one rule of dbcslam_ros.qos
+    assert subscription_qos_for([]).reliability == "reliable"
 
 
 def test_clock_message_carries_the_bag_time() -> None:

@@ -16,10 +16,10 @@ import pytest
 
 from dbcslam_ros.bag import open_bag
 from dbcslam_ros.cli import main as cli_main
-from dbcslam_ros.demo import DemoOptions, run_demo
 from dbcslam_ros.errors import UsageError
-from dbcslam_ros.evaluate import load_bag_arrays
-from dbcslam_ros.replay import ReplayOptions, replay_bag
+from dbcslam_ros.offline.demo import DemoOptions, run_demo
+from dbcslam_ros.offline.evaluate import load_bag_arrays
+from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
 
 PARTICLES = 40
 SEED = 2

@@ -12,14 +12,14 @@ import pytest
 from dbcslam_core.synthetic import edge_trajectory
 from dbcslam_ros.bag import BagWriter, open_bag
 from dbcslam_ros.cli import main as cli_main
-from dbcslam_ros.evaluate import (
+from dbcslam_ros.offline.evaluate import (
     MissingTopicsError,
     evaluate_bag,
     load_bag_arrays,
     match_stamps,
     metrics_table,
 )
-from dbcslam_ros.replay import ReplayOptions, replay_bag, write_trajectory_bag
+from dbcslam_ros.offline.replay import ReplayOptions, replay_bag, write_trajectory_bag
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +130,7 @@ def test_match_stamps_nearest_within_tolerance() -> None:
 
 
 def test_contact_flag_metrics_count_agreement_per_matched_step() -> None:
-    from dbcslam_ros.evaluate import BagArrays, contact_flag_metrics
+    from dbcslam_ros.offline.evaluate import BagArrays, contact_flag_metrics
 
     # P(separated) per step: 0.9 (sep), 0.2 (contact), 0.4 (contact), 0.7 (sep), 0.1 (contact)
     p_sep = np.array([0.9, 0.2, 0.4, 0.7, 0.1])

@@ -1,4 +1,4 @@
-"""Smoke test of `python -m dbcslam_ros.experiments_sim`: tiny pybullet run, files appear,
+"""Smoke test of `python -m dbcslam_research.experiments_sim`: tiny pybullet run, files appear,
 table parses, bad arguments exit 2."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from dbcslam_ros.experiments_sim import (
+from dbcslam_research.experiments_sim import (
     SIM_TARGETS,
     ForceFedFilter,
     _segments_truth,

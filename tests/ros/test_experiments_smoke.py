@@ -1,4 +1,4 @@
-"""Smoke test of `python -m dbcslam_ros.experiments`: tiny run, files appear, table parses."""
+"""Smoke test of `python -m dbcslam_research.experiments`: tiny run, files appear, table parses."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros.experiments import main
+from dbcslam_research.experiments import main
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_bad_arguments_exit_2(tmp_path: Path) -> None:
 
 
 def test_bench_smoke(tmp_path: Path) -> None:
-    from dbcslam_ros.bench import main as bench_main
+    from dbcslam_research.bench import main as bench_main
 
     argv = ["--out", str(tmp_path), "--particles", "4,6", "--steps", "6", "--warmup", "1"]
     argv += ["--lemke-max", "4", "--accuracy-particles", "0", "--scenarios", "edge", "--quiet"]
@@ -84,7 +84,7 @@ def test_shared_report_helpers(tmp_path: Path) -> None:
     import numpy as np
 
     from dbcslam_core.experiments import RunRecord, Target, TargetCheck
-    from dbcslam_ros.experiments import (
+    from dbcslam_research.experiments import (
         fmt_value,
         json_safe,
         parse_scenarios,
@@ -133,7 +133,7 @@ def test_figure_trace_attaches_better_fixed_baseline() -> None:
     from dataclasses import replace
 
     from dbcslam_core.experiments import run_task
-    from dbcslam_ros.experiments import figure_trace
+    from dbcslam_research.experiments import figure_trace
 
     traces = {}
     for method in ("dbcslam", "fixed:0", "fixed:1"):

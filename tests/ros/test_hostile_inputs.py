@@ -9,17 +9,14 @@ rejected input by reason in ``/diagnostics``, and must still track the valid run
 from __future__ import annotations
 
 import json
-import os
-import random
-import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from dbcslam_ros.network import DISCOVERY_RANGE_VAR, NETWORK_MODE_VAR, PROFILE_VARS
+from dbcslam_ros.network import DISCOVERY_RANGE_VAR
 
 REPO = Path(__file__).resolve().parents[2]
 FEED = Path(__file__).with_name("hostile_feed.py")
@@ -30,17 +27,14 @@ TIME_REASONS = ("stamp_jump", "backlog")
 
 
 @pytest.fixture
-def ros_env() -> dict[str, str]:
-    env = dict(os.environ)
-    for var in (*PROFILE_VARS, DISCOVERY_RANGE_VAR, NETWORK_MODE_VAR):
-        env.pop(var, None)
-    env["ROS_DOMAIN_ID"] = str(random.Random().randint(120, 200))
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+def ros_env(isolated_env: Callable[..., dict[str, str]]) -> dict[str, str]:
+    return isolated_env(DISCOVERY_RANGE_VAR)
 
 
 @pytest.fixture
-def filter_node(ros_env: dict[str, str], tmp_path: Path) -> Iterator[subprocess.Popen[bytes]]:
+def filter_node(
+    ros_env: dict[str, str], tmp_path: Path, processes: list[subprocess.Popen[bytes]]
+) -> subprocess.Popen[bytes]:
     """A live filter node, stopped by PID (SIGTERM, then SIGKILL) even on failure."""
     log = (tmp_path / "filter.log").open("wb")
     args = ["-p", "diagnostics_period:=0.5", "-p", "marker_period:=0.0"]
@@ -50,14 +44,8 @@ def filter_node(ros_env: dict[str, str], tmp_path: Path) -> Iterator[subprocess.
         stderr=subprocess.STDOUT,
         env=ros_env,
     )
-    yield proc
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    processes.append(proc)
+    return proc
 
 
 @pytest.mark.slow

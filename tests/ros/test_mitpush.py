@@ -1,4 +1,5 @@
-"""``dbcslam import-mitpush`` and :mod:`dbcslam_ros.mitpush` on real and synthetic push files.
+"""``dbcslam import-mitpush`` and :mod:`dbcslam_ros.importers.mitpush` on real and synthetic
+push files.
 
 Real files: tests/data/mit-push (3 files of the MIT MCube push dataset, see its README).
 """
@@ -17,10 +18,10 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-import dbcslam_ros.mitpush as mp
+import dbcslam_ros.importers.mitpush as mp
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros.cli import main
-from dbcslam_ros.cli.commands.import_mitpush import CONTACT_TOPIC
+from dbcslam_ros.importers.mitpush_bag import CONTACT_TOPIC
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "mit-push"
 FILES = sorted((DATA / "abs" / "train").glob("*.h5"))
@@ -478,7 +479,7 @@ def test_signed_distance_of_outline() -> None:
 
 # ------------------------------------------------------------------------------ analysis
 def test_friction_radius_of_square() -> None:
-    from dbcslam_ros.push_analysis import friction_radius
+    from dbcslam_research.push_analysis import friction_radius
 
     square = mp.load_outline("rect1", DATA / "shapes").vertices
     side = 0.09
@@ -487,7 +488,7 @@ def test_friction_radius_of_square() -> None:
 
 
 def test_quasi_static_twist_directions() -> None:
-    from dbcslam_ros.push_analysis import _twist
+    from dbcslam_research.push_analysis import _twist
 
     c = 0.03
     # Centred push on the -x side, straight in: pure translation along +x.
@@ -505,7 +506,7 @@ def test_quasi_static_twist_directions() -> None:
 
 
 def test_quasi_static_replay_on_real_push() -> None:
-    from dbcslam_ros.push_analysis import analyse_motion, friction_radius
+    from dbcslam_research.push_analysis import analyse_motion, friction_radius
 
     path = next(f for f in FILES if "hex" in f.name)
     raw = mp.load_push(path)
@@ -556,7 +557,7 @@ def _synthetic_push(
     """A push of an outline (file frame) whose place in the tracked frame is ``truth``: the
     tip approaches the named contact point along its inward normal for 0.4 s, then the object
     moves and turns while the tip slides ``slide`` m along the outline; F/T 2 N in contact."""
-    from dbcslam_ros.mitpush_align import named_contact
+    from dbcslam_ros.importers.mitpush_align import named_contact
 
     n, t0 = 300, 1.6e9
     t = 0.004 * np.arange(n)
@@ -627,7 +628,7 @@ def test_alignment_is_recovered_for_every_shape(
 ) -> None:
     """One procedure for every outline: the fitted map puts the outline where the synthetic
     truth put it (within 0.3 mm) and the named first contacts on the measured ones."""
-    from dbcslam_ros.mitpush_align import shape_alignment
+    from dbcslam_ros.importers.mitpush_align import shape_alignment
 
     truth = mp.ShapeAlignment(1.2, (0.0012, -0.0008), mirrored)
     paths, vertices = _write_pushes(tmp_path, shape, truth)
@@ -715,7 +716,7 @@ def test_read_shape_table(tmp_path: Path) -> None:
 
 
 def test_alignment_is_deterministic_and_the_same_for_every_file_of_a_set(tmp_path: Path) -> None:
-    import dbcslam_ros.mitpush_align as ma
+    import dbcslam_ros.importers.mitpush_align as ma
 
     truth = mp.ShapeAlignment(2.0, (0.0005, 0.001), True)
     paths, vertices = _write_pushes(tmp_path, "hex", truth)
@@ -737,7 +738,7 @@ SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "mit-push"
 def test_pooled_fit_near_the_hand_constants_on_the_full_subset(shape: str) -> None:
     """On the 50 training pushes (when present): mirrored, offsets within 1 mm and yaw within
     30 mrad of the first importer's constants, at no higher robust cost than they have."""
-    import dbcslam_ros.mitpush_align as ma
+    import dbcslam_ros.importers.mitpush_align as ma
 
     files = sorted((SHARED / "abs" / "train").glob(f"*_shape={shape}_*.h5"))
     outline = mp.load_outline(shape, SHARED / "shapes")
@@ -752,3 +753,17 @@ def test_pooled_fit_near_the_hand_constants_on_the_full_subset(shape: str) -> No
     ref_cost, _, _ = ma._reference_stats(evidence, mp.convex_hull(outline.file_vertices), ref)
     assert fit.cost <= ref_cost * 1.0001
     assert fit.median_gap < 0.001
+
+
+@pytest.mark.parametrize("model", ["dynamic", "quasi_static"])
+def test_push_model_flag_sets_the_scenario_model(tmp_path: Path, model: str) -> None:
+    out = tmp_path / model
+    assert main(["import-mitpush", str(FILES[1]), "-o", str(out), "--push-model", model]) == 0
+    topics = _read_bag(out / _stem(FILES[1]))
+    scenario = Scenario.from_yaml(topics["/scenario"][0][1].data)
+    assert scenario.surface.push_model == model
+
+
+def test_push_model_is_validated() -> None:
+    with pytest.raises(mp.MitPushError, match="push_model"):
+        mp.ImportConfig(push_model="quasistatic")

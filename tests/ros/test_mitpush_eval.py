@@ -1,4 +1,4 @@
-"""The measured-data pipeline (dbcslam_ros.mitpush_eval) on the 3 pushes in tests/data."""
+"""The measured-data pipeline (dbcslam_research.mitpush_eval) on the 3 pushes in tests/data."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ from typing import Any
 
 import pytest
 
-from dbcslam_ros.errors import UsageError
-from dbcslam_ros.mitpush_eval import (
+from dbcslam_research.mitpush_eval import (
     EvalOptions,
     markdown_table,
     resolve_data,
     run_eval,
     summarise,
 )
+from dbcslam_ros.errors import UsageError
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "mit-push"
 

@@ -12,14 +12,12 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import os
-import random
-import signal
 import socket
 import subprocess
 import sys
 import textwrap
 import time
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -167,31 +165,12 @@ _LISTENER = textwrap.dedent(
 
 
 @pytest.fixture
-def clean_env() -> dict[str, str]:
+def clean_env(isolated_env: Callable[..., dict[str, str]]) -> dict[str, str]:
     """The test environment with the network variables unset (but the LOCALHOST range the
     ROS docs advise), on its own domain."""
-    env = dict(os.environ)
-    for var in (*PROFILE_VARS, NETWORK_MODE_VAR, "RMW_IMPLEMENTATION"):
-        env.pop(var, None)
+    env = isolated_env("RMW_IMPLEMENTATION")
     env[DISCOVERY_RANGE_VAR] = "LOCALHOST"  # as the ROS 2 docs advise: must stay on loopback
-    env["ROS_DOMAIN_ID"] = str(random.Random().randint(120, 200))
-    env["PYTHONUNBUFFERED"] = "1"
     return env
-
-
-@pytest.fixture
-def processes(tmp_path: Path) -> Iterator[list[subprocess.Popen[bytes]]]:
-    """Started processes, stopped by PID (SIGTERM, then SIGKILL) even when the test fails."""
-    procs: list[subprocess.Popen[bytes]] = []
-    yield procs
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(8)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
 
 
 @pytest.mark.slow

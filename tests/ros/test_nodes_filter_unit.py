@@ -7,6 +7,7 @@ and catch-up rules are checked deterministically.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import defaultdict
 from typing import Any
@@ -15,9 +16,9 @@ import numpy as np
 import pytest
 
 from dbcslam_core.synthetic import edge_trajectory
-from dbcslam_ros import filter_node as fn
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.convert import array_from_msg, pose_stamped, wrench_stamped
+from dbcslam_ros.node import filter_node as fn
 
 NS = 1_000_000_000
 T0 = 10 * NS
@@ -179,10 +180,16 @@ def test_non_finite_estimate_is_never_published(
         _tick(node, traj, k)
     n_pose = fake.topics().count("/dbcslam/pose")
 
-    def nan_messages(*_: Any, **__: Any) -> Any:
-        raise ValueError("estimate field pose has non-finite values")
+    assert filt.session is not None
+    flt = filt.session._filter
+    assert flt is not None
+    real_step = flt.step
 
-    monkeypatch.setattr(fn, "estimate_messages", nan_messages)
+    def nan_step(*args: Any, **kwargs: Any) -> Any:  # a filter that blows up
+        est = real_step(*args, **kwargs)
+        return dataclasses.replace(est, pose=np.full(3, np.nan))
+
+    monkeypatch.setattr(flt, "step", nan_step)
     _tick(node, traj, 5)
     assert fake.topics().count("/dbcslam/pose") == n_pose
     assert filt.session is not None and filt.session.rejected["nan_estimate"] == 1

@@ -136,7 +136,7 @@ def core_edge(listener_node: Any, module_processes: Any) -> Recording:
     rec = Recording()
     subs = _subscribe_all(listener_node, rec, {})
     filt = module_processes.start(
-        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=100", *FILTER_ARGS
+        "dbcslam_ros.node.filter_node", "--ros-args", "-p", "particles:=100", *FILTER_ARGS
     )
     sim = module_processes.start(
         "sim_publisher.node",
@@ -184,7 +184,7 @@ def bullet_push(listener_node: Any, module_processes: Any, core_edge: Recording)
         rt.spin_once(listener_node, timeout_sec=0.05)
     assert rec.msgs["/scenario"], sim.log()
     filt = module_processes.start(
-        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=60", *FILTER_ARGS
+        "dbcslam_ros.node.filter_node", "--ros-args", "-p", "particles:=60", *FILTER_ARGS
     )
     _record(listener_node, rec, subs, (sim, filt), until_s=40.0, graph_after=20)
     filt.terminate()

@@ -104,7 +104,7 @@ def test_bad_messages_are_counted_and_the_node_survives(
     from dbcslam_core.synthetic import edge_trajectory
 
     filt = node_process(
-        "dbcslam_ros.filter_node",
+        "dbcslam_ros.node.filter_node",
         "--ros-args",
         "-p",
         "particles:=50",
@@ -181,7 +181,7 @@ def test_bad_messages_are_counted_and_the_node_survives(
     [("catch_up_steps:=0", "catch_up_steps"), ("model_file:=/no/such.yaml", "/no/such.yaml")],
 )
 def test_filter_rejects_bad_parameters(node_process: Any, param: str, needle: str) -> None:
-    filt = node_process("dbcslam_ros.filter_node", "--ros-args", "-p", param)
+    filt = node_process("dbcslam_ros.node.filter_node", "--ros-args", "-p", param)
     assert filt.proc.wait(20) == 2
     assert needle in filt.log()
     assert "Traceback" not in filt.log()
@@ -193,7 +193,7 @@ def test_lost_filter_is_reinitialised(node_process: Any, fake_sim: FakeSim) -> N
     from dbcslam_core.synthetic import edge_trajectory
 
     filt = node_process(
-        "dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=50",
+        "dbcslam_ros.node.filter_node", "--ros-args", "-p", "particles:=50",
         "-p", "diagnostics_period:=0.2", "-p", "marker_particles:=0",
     )  # fmt: skip
     sim = fake_sim

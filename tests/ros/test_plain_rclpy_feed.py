@@ -2,7 +2,7 @@
 
 The feeder below imports only rclpy, the message packages and rosbags (to read the bag): it
 publishes the bag's ``/scenario`` (latched) and input topics at the recorded pace and counts
-the ``/dbcslam/pose`` estimates that come back from ``dbcslam_ros.filter_node`` running as a
+the ``/dbcslam/pose`` estimates that come back from ``dbcslam_ros.node.filter_node`` running as a
 separate process. Nearly every pose must be answered.
 """
 
@@ -71,7 +71,7 @@ main()
 def test_plain_rclpy_node_feeds_the_filter(tmp_path: Path, node_process: Any) -> None:
     script = tmp_path / "plain_feeder.py"
     script.write_text(FEEDER)
-    filt = node_process("dbcslam_ros.filter_node", "--ros-args", "-p", "particles:=50")
+    filt = node_process("dbcslam_ros.node.filter_node", "--ros-args", "-p", "particles:=50")
     import subprocess
 
     out = subprocess.run(

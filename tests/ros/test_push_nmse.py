@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dbcslam_ros.push_nmse import displacement, load_cases, main, nmse, predict
+from dbcslam_research.push_nmse import displacement, load_cases, main, nmse, predict
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "mit-push"
 

@@ -1,4 +1,4 @@
-"""Tests of dbcslam_ros.readme_results: the README results section generator."""
+"""Tests of dbcslam_research.readme_results: the README results section generator."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros.readme_results import (
+from dbcslam_research.readme_results import (
     MARKER_BEGIN,
     MARKER_END,
     figure_caption,
@@ -46,10 +46,10 @@ def _targets(value: float) -> list[dict[str, object]]:
 @pytest.fixture
 def repo(tmp_path: Path) -> Path:
     """A fake checkout: README with markers and a results dir with core results only."""
-    res = tmp_path / "dbcslam_core" / "doc" / "results"
+    res = tmp_path / "dbcslam_ros" / "research" / "results"
     res.mkdir(parents=True)
     payload = {
-        "command": "python -m dbcslam_ros.experiments --seeds 5",
+        "command": "python -m dbcslam_research.experiments --seeds 5",
         "date_utc": "2026-11-21 06:45 UTC",
         "elapsed_s": 120.0,
         "targets": _targets(0.26),
@@ -59,7 +59,7 @@ def repo(tmp_path: Path) -> Path:
     for name in ("edge_overview.png", "edge_friction.png", "gripper_yaw.png"):
         (res / name).write_bytes(PNG)
     (res / "bench.md").write_text(
-        "# DBC-SLAM benchmark\n\nCommand: `python -m dbcslam_ros.bench --repeat 2`\n\n"
+        "# DBC-SLAM benchmark\n\nCommand: `python -m dbcslam_research.bench --repeat 2`\n\n"
         "## Per-step time\n\n| a | b |\n|---|---|\n| 1 | 2 |\n"
     )
     (res / "bench.json").write_text(json.dumps({"meta": {"date_utc": "2026-11-21 06:30 UTC"}}))
@@ -70,7 +70,7 @@ def repo(tmp_path: Path) -> Path:
 
 def test_rewrites_only_between_markers(repo: Path) -> None:
     readme = repo / "README.md"
-    res = repo / "dbcslam_core" / "doc" / "results"
+    res = repo / "dbcslam_ros" / "research" / "results"
     assert update_readme(readme, res) == "updated"
     text = readme.read_text()
     head, rest = text.split(MARKER_BEGIN)
@@ -78,16 +78,18 @@ def test_rewrites_only_between_markers(repo: Path) -> None:
     assert head == "# Title\n\nintro\n\n"
     assert tail == "\n\n## After\n"
     assert "old text" not in body
-    assert "`python -m dbcslam_ros.experiments --seeds 5`" in body
+    assert "`python -m dbcslam_research.experiments --seeds 5`" in body
     assert "2026-11-21 06:45 UTC" in body
     assert "| edge | position RMSE <= 0.5 x noise std | 0.260 | <= 0.500 | PASS |" in body
     assert "| gripper | live hypotheses | 6.000 | - | report |" in body
     # figures: relative paths; overview embedded, panels linked, each with a caption
-    assert "](dbcslam_core/doc/results/edge_overview.png)" in body
+    assert "](dbcslam_ros/research/results/edge_overview.png)" in body
     assert body.count("![") == 1
-    assert "- [edge_friction.png](dbcslam_core/doc/results/edge_friction.png): Edge" in body
+    assert "- [edge_friction.png](dbcslam_ros/research/results/edge_friction.png): Edge" in body
     assert "friction map along the edge" in body
-    assert "- [gripper_yaw.png](dbcslam_core/doc/results/gripper_yaw.png): Parallel-jaw" in body
+    assert (
+        "- [gripper_yaw.png](dbcslam_ros/research/results/gripper_yaw.png): Parallel-jaw" in body
+    )
     # bench: title dropped, headings demoted, date from bench.json, no sim section
     assert "#### Per-step time" in body and "# DBC-SLAM benchmark" not in body
     assert "Date: 2026-11-21 06:30 UTC." in body
@@ -99,12 +101,14 @@ def test_rewrites_only_between_markers(repo: Path) -> None:
 
 def test_optional_sections_and_check(repo: Path) -> None:
     readme = repo / "README.md"
-    res = repo / "dbcslam_core" / "doc" / "results"
+    res = repo / "dbcslam_ros" / "research" / "results"
     update_readme(readme, res)
     sim = res / "sim"
     sim.mkdir()
     (sim / "experiments_sim.json").write_text(
-        json.dumps({"command": "python -m dbcslam_ros.experiments_sim", "targets": _targets(0.7)})
+        json.dumps(
+            {"command": "python -m dbcslam_research.experiments_sim", "targets": _targets(0.7)}
+        )
     )
     (sim / "sim_push_offcentre_yaw.png").write_bytes(PNG)
     (res / "bench_live.md").write_text("# Live\n\nDate: today; rate 100 Hz\n")
@@ -112,10 +116,12 @@ def test_optional_sections_and_check(repo: Path) -> None:
     assert "pybullet data" not in readme.read_text()
     assert main(["--readme", str(readme), "--results", str(res)]) == 0
     body = readme.read_text()
-    assert "`python -m dbcslam_ros.experiments_sim`" in body
+    assert "`python -m dbcslam_research.experiments_sim`" in body
     assert "(file time)" in body  # no date_utc in the sim JSON: file modification time
     assert "| edge | position RMSE <= 0.5 x noise std | 0.700 | <= 0.500 | FAIL |" in body
-    assert "](dbcslam_core/doc/results/sim/sim_push_offcentre_yaw.png): Planar push, off" in body
+    assert (
+        "](dbcslam_ros/research/results/sim/sim_push_offcentre_yaw.png): Planar push, off" in body
+    )
     assert "Date: today; rate 100 Hz" in body
     assert main(["--readme", str(readme), "--results", str(res), "--check"]) == 0
     # a report that states its own date gets no extra Date line
@@ -140,7 +146,7 @@ def test_missing_results_and_bad_files(repo: Path, tmp_path: Path) -> None:
     empty.mkdir()
     text = render_results(empty, repo)
     assert "run `make experiments`" in text
-    res = repo / "dbcslam_core" / "doc" / "results"
+    res = repo / "dbcslam_ros" / "research" / "results"
     (res / "experiments.json").write_text("{not json")
     assert main(["--readme", str(repo / "README.md"), "--results", str(res)]) == 2
     assert main(["--readme", str(tmp_path / "nope.md"), "--results", str(res)]) == 2

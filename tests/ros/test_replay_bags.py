@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from dbcslam_ros.bag import find_bags, open_bag
-from dbcslam_ros.replay import ReplayOptions, replay_bag
+from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 #: Few particles keep the tests fast; the thresholds below are loose accordingly.

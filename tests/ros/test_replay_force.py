@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dbcslam_ros.replay import ReplayOptions, replay_bag
+from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
 
 PUSH_BAG = Path(__file__).resolve().parents[2] / "bags" / "push"
 

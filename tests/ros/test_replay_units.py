@@ -16,7 +16,7 @@ from dbcslam_core.synthetic import edge_trajectory, gripper_trajectory
 from dbcslam_ros.bag import BagWriter, open_bag
 from dbcslam_ros.cli import main as cli_main
 from dbcslam_ros.errors import BagError, UsageError
-from dbcslam_ros.replay import (
+from dbcslam_ros.offline.replay import (
     ReplayOptions,
     load_filter_params,
     replay_bag,

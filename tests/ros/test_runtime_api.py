@@ -69,7 +69,7 @@ def test_logging_format_and_throttle(rt_context, capfd) -> None:
 def test_graph_discovers_topics_that_appear_later(rt_context, node_process) -> None:
     node = rt_context("observer")
     assert "/chatter" not in dict(rt.get_topic_names_and_types(node))
-    talker = node_process("dbcslam_ros.demo_nodes", "talker")
+    talker = node_process("dbcslam_ros.node.demo_nodes", "talker")
     assert rt.spin_until(
         node, lambda: "/chatter" in dict(rt.get_topic_names_and_types(node)), 10.0
     ), talker.log()

@@ -9,8 +9,12 @@ import pytest
 
 
 def test_talker_and_listener_processes_talk(node_process) -> None:
-    listener = node_process("dbcslam_ros.demo_nodes", "listener", "--ros-args", "-p", "count:=5")
-    talker = node_process("dbcslam_ros.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=50.0")
+    listener = node_process(
+        "dbcslam_ros.node.demo_nodes", "listener", "--ros-args", "-p", "count:=5"
+    )
+    talker = node_process(
+        "dbcslam_ros.node.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=50.0"
+    )
     # the listener exits by itself (code 0) after 5 messages + scenario: -p reached it
     assert listener.proc.wait(20) == 0, listener.log()
     log = listener.log()
@@ -22,7 +26,9 @@ def test_talker_and_listener_processes_talk(node_process) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_shuts_node_down_cleanly(node_process, sig: signal.Signals) -> None:
-    talker = node_process("dbcslam_ros.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=20.0")
+    talker = node_process(
+        "dbcslam_ros.node.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=20.0"
+    )
     assert talker.wait_for_log("sent 'hello 1'", 10.0), talker.log()
     os.kill(talker.pid, sig)
     assert talker.proc.wait(10) == 0, talker.log()
@@ -30,6 +36,8 @@ def test_signal_shuts_node_down_cleanly(node_process, sig: signal.Signals) -> No
 
 
 def test_bad_parameter_override_fails_with_message(node_process) -> None:
-    talker = node_process("dbcslam_ros.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=fast")
+    talker = node_process(
+        "dbcslam_ros.node.demo_nodes", "talker", "--ros-args", "-p", "rate_hz:=fast"
+    )
     assert talker.proc.wait(10) != 0
     assert "rate_hz" in talker.log() and "DOUBLE" in talker.log()

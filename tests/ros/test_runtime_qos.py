@@ -66,7 +66,7 @@ def test_latched_message_reaches_late_subscriber_in_other_process(
     rt_context, node_process
 ) -> None:
     talker = node_process(
-        "dbcslam_ros.demo_nodes",
+        "dbcslam_ros.node.demo_nodes",
         "talker",
         "--ros-args",
         "-p",

@@ -1,4 +1,4 @@
-"""dbcslam_ros.science: the benchmark's scoring rule and its merge of parts."""
+"""dbcslam_research.science: the benchmark's scoring rule and its merge of parts."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from dbcslam_core.extensions import ModelExtension
-from dbcslam_ros.science import edge_draw, merge, recovered
+from dbcslam_research.science import edge_draw, merge, recovered
 
 
 def _res(effect: str | None, params: dict[str, float], amb: tuple[str, ...] = ()) -> Any:

@@ -1,4 +1,4 @@
-"""Input synchronisation of dbcslam_ros.session.FilterSession.
+"""Input synchronisation of dbcslam_ros.node.session.FilterSession.
 
 Most tests replace the core filter by a recorder of the calls it gets, so the hold,
 interpolation, gap and reset rules are checked exactly; one test runs the real filter.
@@ -13,9 +13,9 @@ import pytest
 
 from dbcslam_core.rbpf import FilterConfig, FilterInput
 from dbcslam_core.scenario import Scenario, edge_scenario, gripper_scenario, push_scenario
-from dbcslam_ros import session as session_mod
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
-from dbcslam_ros.session import FilterSession
+from dbcslam_ros.node import session as session_mod
+from dbcslam_ros.node.session import FilterSession
 
 MS = 1_000_000  # ns
 T0 = 5_000_000_000  # an arbitrary start stamp (ns)

@@ -18,10 +18,10 @@ from dbcslam_core.rbpf import FilterConfig
 from dbcslam_core.scenario import Scenario
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_ros.convert import PoseReading
-from dbcslam_ros.discrepancy_report import filter_tracking
-from dbcslam_ros.evaluate import load_bag_arrays, match_stamps
-from dbcslam_ros.replay import ReplayOptions, replay_bag, write_trajectory_bag
-from dbcslam_ros.session import FilterSession, observation_correction
+from dbcslam_ros.node.session import FilterSession, observation_correction
+from dbcslam_ros.offline.discrepancy_report import filter_tracking
+from dbcslam_ros.offline.evaluate import load_bag_arrays, match_stamps
+from dbcslam_ros.offline.replay import ReplayOptions, replay_bag, write_trajectory_bag
 
 
 def _scenario() -> Scenario:

@@ -29,7 +29,7 @@ def _cases(tmp: Path) -> dict[str, tuple[tuple[str, ...], str]]:
     scen.write_text(edge_scenario().to_yaml())
     return {
         "filter": (
-            ("dbcslam_ros.filter_node", "--ros-args", "-p", f"scenario_file:={scen}"),
+            ("dbcslam_ros.node.filter_node", "--ros-args", "-p", f"scenario_file:={scen}"),
             "configured for scenario",
         ),
         "sim": (
@@ -45,8 +45,8 @@ def _cases(tmp: Path) -> dict[str, tuple[tuple[str, ...], str]]:
             ),
             "publishing scenario",
         ),
-        "talker": (("dbcslam_ros.demo_nodes", "talker"), "sent 'hello 1'"),
-        "listener": (("dbcslam_ros.demo_nodes", "listener"), "listening on chatter"),
+        "talker": (("dbcslam_ros.node.demo_nodes", "talker"), "sent 'hello 1'"),
+        "listener": (("dbcslam_ros.node.demo_nodes", "listener"), "listening on chatter"),
         "record": (
             ("dbcslam_ros.cli", "record", "-o", str(tmp / "bag"), "--contract", "--overwrite"),
             "recording /scenario",

@@ -1,6 +1,6 @@
 """Model discrepancy analysis: what the nominal model gets wrong, which effect explains it.
 
-Pure numpy; used by `dbcslam discrepancy` (dbcslam_ros.discrepancy_report). One module per
+Pure numpy; used by `dbcslam discrepancy` (dbcslam_ros.offline.discrepancy_report). One module per
 part: `runs` (data, split), `effects` (vocabulary, search spaces, how an effect enters the
 filter), `scoring` (the filter's log predictive likelihood as the score), `fitting`
 (parameters by maximising it), `analysis` (prepare -> fit -> compare -> verdict),

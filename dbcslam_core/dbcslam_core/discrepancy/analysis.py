@@ -78,7 +78,8 @@ class DiscrepancyConfig:
     (None: `runs.default_effects` that the filter can score); holdout_fraction: held-out
     tail of a single run without held-out runs;
     horizon, stride, max_starts: the rollout pictures (`rollouts.RolloutConfig`);
-    pictures: compute them.
+    pictures: compute them; filter_overrides: `FilterConfig` fields of the scoring filter
+    (`scoring.ScoreConfig.filter_overrides`).
     """
 
     particles: int = 300
@@ -95,6 +96,7 @@ class DiscrepancyConfig:
     stride: int = 2
     max_starts: int = 150
     pictures: bool = True
+    filter_overrides: tuple[tuple[str, object], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -432,7 +434,12 @@ def analyse(
     cfg = cfg or DiscrepancyConfig()
     say = progress or (lambda s: None)
     started = time.monotonic()
-    scfg = ScoreConfig(particles=cfg.particles, seed=cfg.seed, workers=cfg.workers)
+    scfg = ScoreConfig(
+        particles=cfg.particles,
+        seed=cfg.seed,
+        workers=cfg.workers,
+        filter_overrides=cfg.filter_overrides,
+    )
     with Scorer(scfg, say) as scorer:
         prep = prepare(runs, heldout_runs, cfg, scorer, say)
         fits = fit_all(prep, scorer, say, started)

@@ -5,9 +5,13 @@ A `Hypothesis` is the nominal model plus at most one effect of the contract voca
 it (what the filter session does with a model file):
 
 * dynamic effects (viscous_damping, mass_scale, input_gain, support_friction,
-  support_pressure) are passed to the filter as `extensions=` (`PlanarModel` applies them);
+  support_pressure, support_concentration) are passed to the filter as `extensions=`
+  (`PlanarModel` applies them);
 * friction_scale multiplies the scenario's friction candidates (the filter integrates
-  friction over its candidates, it does not apply the extension's mu field);
+  friction over its candidates, it does not apply the extension's mu field); likewise
+  support_friction on a scenario whose support coefficient is an estimated pair
+  (``surface.pair``) replaces that pair's candidates by its single value (the filter's
+  support coefficient per friction hypothesis comes from the candidates);
 * sensor_bias is subtracted from the observed poses; sensor_delay (observations lag the
   state by `seconds`) drives the filter with the inputs and joints `seconds` earlier
   (linear interpolation), so that observation k is of the state the delayed inputs
@@ -52,6 +56,7 @@ FILTER_EFFECTS: frozenset[str] = frozenset(
         "sensor_bias",
         "support_friction",
         "support_pressure",
+        "support_concentration",
     }
 )
 """Effects the filter-based score can evaluate (see module docstring)."""
@@ -85,11 +90,15 @@ class ParamSpace:
         return lo_hit or hi_hit
 
 
-def effect_spaces(scenario: Scenario, effect: str) -> tuple[ParamSpace, ...]:
+def effect_spaces(  # noqa: PLR0911
+    scenario: Scenario, effect: str
+) -> tuple[ParamSpace, ...]:
     """The parameter search spaces of `effect` in `scenario` (SI units).
 
     Factors search [0.4, 2.5] on a log grid; damping up to 8 m / s (N s/m); delay up to
-    0.15 s; support friction up to 0.8; sensor bias +-5 cm (yaw +-0.1 rad).
+    0.15 s; support friction up to 0.8; support_concentration up to 0.95; sensor bias +-5 cm
+    (yaw +-0.1 rad), its grid in steps of the observation noise std (position: +-1, 2, 3.5
+    stds, at most +-3.5 cm; yaw: +-2, 4 stds, at most +-0.05 rad).
     """
     m = float(scenario.body.mass)
     fac = (0.6, 0.8, 1.25, 1.6, 2.0)
@@ -102,17 +111,31 @@ def effect_spaces(scenario: Scenario, effect: str) -> tuple[ParamSpace, ...]:
     if effect == "sensor_delay":
         return (ParamSpace("seconds", 0.0, 0.15, False, 0.0, (0.02, 0.05, 0.09, 0.13)),)
     if effect == "support_friction":
-        return (ParamSpace("mu", 0.0, 0.8, False, 0.0, (0.05, 0.12, 0.25, 0.45)),)
+        # with an estimated support pair the nominal model has support friction (its
+        # candidates): the grid is walked outwards from their prior mean, not from 0
+        mu0 = 0.0
+        if scenario.surface.pair is not None:
+            i = scenario.friction.pair_index(scenario.surface.pair)
+            mu0 = float(np.dot(scenario.friction.candidates[i], scenario.friction.prior[i]))
+        grid = tuple(g for g in (0.05, 0.12, 0.25, 0.45) if abs(g - mu0) > 0.02)
+        return (ParamSpace("mu", 0.0, 0.8, False, mu0, grid),)
     if effect == "support_pressure":
         return (ParamSpace("rim_fraction", 0.0, 1.0, False, 0.0, (0.25, 0.5, 1.0)),)
+    if effect == "support_concentration":
+        return (ParamSpace("centre_fraction", 0.0, 0.95, False, 0.0, (0.2, 0.4, 0.6, 0.8)),)
     if effect == "sensor_bias":
-        pos = (-0.035, -0.02, -0.01, 0.01, 0.02, 0.035)
+        # grid steps of the order of the observation noise (1 cm: +-1, 2, 3.5 cm): a bias of
+        # many noise stds is far outside what a filter scores, and finer ones fall between
+        s = float(np.clip(scenario.noise.position, 1e-4, 0.01))
+        pos = tuple(s * g for g in (-3.5, -2.0, -1.0, 1.0, 2.0, 3.5))
         out = [
             ParamSpace("y", -0.05, 0.05, False, 0.0, pos),
             ParamSpace("x", -0.05, 0.05, False, 0.0, pos),
         ]
         if scenario.nq == 3:
-            out.append(ParamSpace("yaw", -0.1, 0.1, False, 0.0, (-0.05, 0.05)))
+            ys = float(np.clip(scenario.noise.yaw, 1e-3, 0.0125))
+            yaw = tuple(ys * g for g in (-4.0, -2.0, 2.0, 4.0))
+            out.append(ParamSpace("yaw", -0.1, 0.1, False, 0.0, yaw))
         return tuple(out)
     msg = (
         f"effect {effect!r} cannot be scored with the filter; scorable effects: "
@@ -166,6 +189,17 @@ class Hypothesis:
             bias = np.asarray([p["x"], p["y"], p["yaw"]], dtype=np.float64)
         elif self.effect == "sensor_delay":
             delay = p["seconds"]
+        elif self.effect == "support_friction" and sc.surface.pair is not None:
+            # the filter's support coefficient is its support pair's candidates (one per
+            # friction hypothesis): the effect replaces them by the single value
+            fr = sc.friction
+            i = fr.pair_index(sc.surface.pair)
+            cands = tuple((p["mu"],) if j == i else c for j, c in enumerate(fr.candidates))
+            prior = tuple((1.0,) if j == i else q for j, q in enumerate(fr.prior))
+            sc = dataclasses.replace(
+                sc, friction=dataclasses.replace(fr, candidates=cands, prior=prior)
+            )
+            exts = (ModelExtension.make("support_friction", mu=p["mu"]),)
         elif self.effect != "none":
             ext = self.extension()
             assert ext is not None
@@ -185,7 +219,8 @@ def effect_size(  # noqa: PLR0911
 
     factors: |log f| / log 1.1; viscous_damping: b over 0.2 N s/m per kg; sensor_delay:
     seconds / (dt / 2); sensor_bias: position over half the position noise std (yaw over
-    half the yaw noise std); support_friction: mu / 0.02; support_pressure: rim / 0.1.
+    half the yaw noise std); support_friction: mu / 0.02; support_pressure: rim / 0.1;
+    support_concentration: centre_fraction / 0.1.
     """
     if effect in ("friction_scale", "mass_scale", "input_gain"):
         return abs(math.log(params["factor"])) / math.log(1.1)
@@ -201,6 +236,8 @@ def effect_size(  # noqa: PLR0911
         return params["mu"] / 0.02
     if effect == "support_pressure":
         return params["rim_fraction"] / 0.1
+    if effect == "support_concentration":
+        return params["centre_fraction"] / 0.1
     return 0.0
 
 

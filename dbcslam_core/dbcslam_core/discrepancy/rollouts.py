@@ -5,7 +5,7 @@ This module draws the pictures of the report: from start states along each run (
 filter's posterior means when given, else a local polynomial fit of the observations), the
 deterministic model `PlanarModel.step` (vectorised PGS) predicts the next `horizon` samples
 from the measured inputs; the residuals obs[k + h] - pred are characterised (bias, growth,
-correlations, lag) and plotted by `dbcslam_ros.discrepancy_report`. Friction: the prior
+correlations, lag) and plotted by `dbcslam_ros.offline.discrepancy_report`. Friction: the prior
 mean of the candidates (a picture of the nominal model, not the filter's estimate).
 
 `Predictor.project` removes the part of each residual that a different start state could

@@ -72,7 +72,7 @@ def default_effects(scenario: Scenario) -> tuple[str, ...]:
     if scenario.kind == "gripper":
         base += ["friction_patch"]
     if scenario.kind == "push":
-        base += ["support_friction", "support_pressure"]
+        base += ["support_friction", "support_pressure", "support_concentration"]
     return tuple(base)
 
 

@@ -25,7 +25,9 @@ from rosbags.interfaces import (
     QosTime,
 )
 
+from dbcslam_ros.contract import contract_qos_profile
 from dbcslam_ros.errors import BagError
+from dbcslam_ros.qos import INFINITE, PROFILES, QoSProfile, to_bag_qos
 
 __all__ = [
     "INFINITE",
@@ -45,8 +47,6 @@ __all__ = [
     "qos_to_yaml_string",
 ]
 
-#: rmw's "infinite" duration as rosbag2 stores it (seconds and nanoseconds of INT64_MAX ns).
-INFINITE = QosTime(9223372036, 854775807)
 #: rmw's "default" (zero) duration.
 _ZERO = QosTime(0, 0)
 
@@ -67,42 +67,29 @@ def make_qos(
         depth: history depth (samples kept), >= 1 for KEEP_LAST.
         keep_all: KEEP_ALL history instead of KEEP_LAST.
     """
-    return Qos(
-        history=QosHistory.KEEP_ALL if keep_all else QosHistory.KEEP_LAST,
-        depth=depth,
-        reliability=QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
-        durability=QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
-        deadline=INFINITE,
-        lifespan=INFINITE,
-        liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=INFINITE,
-        avoid_ros_namespace_conventions=False,
+    return to_bag_qos(
+        QoSProfile(
+            "reliable" if reliable else "best_effort",
+            "transient_local" if transient_local else "volatile",
+            "keep_all" if keep_all else "keep_last",
+            depth,
+        )
     )
 
 
 #: rclpy ``qos_profile_sensor_data``: best effort, volatile, keep last 5.
-SENSOR_DATA_QOS = make_qos(reliable=False, depth=5)
+SENSOR_DATA_QOS = to_bag_qos(PROFILES["sensor_data"])
 #: rclpy default publisher profile: reliable, volatile, keep last 10.
-RELIABLE_QOS = make_qos()
+RELIABLE_QOS = to_bag_qos(PROFILES["default"])
 #: Latched topic (``/scenario``): reliable, transient local, keep last 1.
-LATCHED_QOS = make_qos(transient_local=True, depth=1)
-
-_CONTRACT_SENSOR_TOPICS = frozenset(
-    {"/object/pose", "/object/wrench", "/joint_states", "/pusher/wrench"}
-)
+LATCHED_QOS = to_bag_qos(PROFILES["latched"])
 
 
 def contract_qos(topic: str) -> Qos:
-    """QoS of a topic as the interface contract fixes it (default: reliable, volatile, 10).
-
-    Sensor inputs get :data:`SENSOR_DATA_QOS`, ``/scenario`` gets :data:`LATCHED_QOS`, every
-    other topic (truth, estimates, diagnostics, unknown ones) :data:`RELIABLE_QOS`.
-    """
-    if topic in _CONTRACT_SENSOR_TOPICS:
-        return SENSOR_DATA_QOS
-    if topic == "/scenario":
-        return LATCHED_QOS
-    return RELIABLE_QOS
+    """QoS of a topic as the interface contract fixes it (:mod:`dbcslam_ros.contract`):
+    sensor inputs :data:`SENSOR_DATA_QOS`, ``/scenario`` :data:`LATCHED_QOS`, every other
+    topic (truth, estimates, diagnostics, unknown ones) :data:`RELIABLE_QOS`."""
+    return to_bag_qos(contract_qos_profile(topic))
 
 
 def _time_dict(value: QosTime) -> dict[str, int]:

@@ -1,7 +1,7 @@
 """The ``dbcslam`` command line: argparse with one module per subcommand.
 
 Exit codes: 0 success, 2 bad usage or bad input (one-line message naming the file and the
-problem: any ``DbcSlamRosError`` except ``RuntimeBackendError``, and core ``DbcSlamError``s
+problem: any ``DbcSlamRosError``, and core ``DbcSlamError``s
 that are ``ValueError``s), 1 internal failure. Set ``DBCSLAM_DEBUG=1`` to get tracebacks of
 internal failures.
 """
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_ros.cli.registry import Command, discover_commands
-from dbcslam_ros.errors import DbcSlamRosError, RuntimeBackendError
+from dbcslam_ros.errors import DbcSlamRosError
 
 __all__ = ["EXIT_FAILURE", "EXIT_OK", "EXIT_USAGE", "Command", "build_parser", "main"]
 
@@ -58,7 +58,7 @@ def build_parser(commands: dict[str, Command] | None = None) -> argparse.Argumen
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:  # noqa: PLR0911 - one return per outcome
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``dbcslam`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -66,9 +66,6 @@ def main(argv: Sequence[str] | None = None) -> int:  # noqa: PLR0911 - one retur
     prefix = f"dbcslam {command.name}"
     try:
         return int(command.run(args))
-    except RuntimeBackendError as err:
-        print(f"{prefix}: error: {err}", file=sys.stderr)
-        return EXIT_FAILURE
     except DbcSlamRosError as err:
         print(f"{prefix}: error: {err}", file=sys.stderr)
         return EXIT_USAGE

@@ -13,19 +13,13 @@ import signal
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
+from dataclasses import replace
 from types import FrameType
 from typing import Any
 
-from dbcslam_ros.bag.qos import (
-    INFINITE,
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-)
+from dbcslam_ros.bag.qos import Qos
 from dbcslam_ros.errors import UsageError
-from dbcslam_ros.runtime.qos import PROFILES, QoSProfile
+from dbcslam_ros.qos import PROFILES, QoSProfile, adapt_to_offers, from_bag_qos
 
 __all__ = [
     "StopSignal",
@@ -35,7 +29,6 @@ __all__ = [
     "node_session",
     "positive_float",
     "qos_from_arguments",
-    "runtime_qos_to_bag",
     "subscription_qos_for",
     "unique_node_name",
 ]
@@ -143,61 +136,24 @@ def unique_node_name(base: str) -> str:
 def bag_qos_to_runtime(profiles: Sequence[Qos], *, min_depth: int = 1) -> QoSProfile:
     """The publisher QoS for playing a topic back from the profiles recorded for it.
 
-    Reliable only if every recorded publisher was reliable; transient local only if every one
-    was (as ``ros2 bag play`` adapts); depth the largest recorded depth, at least
-    ``min_depth`` for volatile topics (so a fast playback does not overrun reliable
-    readers) and as recorded for transient-local ones (late joiners get what they would
-    have got). No profile: the ``default`` profile.
+    Reliability and durability by :func:`dbcslam_ros.qos.adapt_to_offers` (as ``ros2 bag
+    play`` adapts; no profile: reliable, volatile); depth the largest recorded depth, at least
+    ``min_depth`` for volatile topics (so a fast playback does not overrun reliable readers)
+    and as recorded for transient-local ones (late joiners get what they would have got).
     """
-    if not profiles:
-        base = PROFILES["default"]
-        return QoSProfile(
-            base.reliability, base.durability, base.history, max(base.depth, min_depth)
-        )
-    reliable = all(q.reliability != QosReliability.BEST_EFFORT for q in profiles)
-    latched = all(q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles)
-    keep_all = any(q.history == QosHistory.KEEP_ALL for q in profiles)
-    depth = max([int(q.depth) for q in profiles] + [1])
-    if not latched:
+    plain = [from_bag_qos(q) for q in profiles]
+    adapted = adapt_to_offers(plain)
+    depth = max([int(q.depth) for q in profiles] + [1 if plain else PROFILES["default"].depth])
+    if adapted.durability != "transient_local":
         depth = max(depth, min_depth)
-    return QoSProfile(
-        "reliable" if reliable else "best_effort",
-        "transient_local" if latched else "volatile",
-        "keep_all" if keep_all else "keep_last",
-        depth,
-    )
-
-
-def runtime_qos_to_bag(qos: QoSProfile) -> Qos:
-    """A runtime QoS profile in the form rosbag2 records (other policies at rmw defaults)."""
-    return Qos(
-        history=QosHistory.KEEP_ALL if qos.history == "keep_all" else QosHistory.KEEP_LAST,
-        depth=int(qos.depth),
-        reliability=QosReliability.RELIABLE
-        if qos.reliability == "reliable"
-        else QosReliability.BEST_EFFORT,
-        durability=QosDurability.TRANSIENT_LOCAL
-        if qos.durability == "transient_local"
-        else QosDurability.VOLATILE,
-        deadline=INFINITE,
-        lifespan=INFINITE,
-        liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=INFINITE,
-        avoid_ros_namespace_conventions=False,
-    )
+    keep_all = any(q.history == "keep_all" for q in plain)
+    return replace(adapted, history="keep_all" if keep_all else "keep_last", depth=depth)
 
 
 def subscription_qos_for(offered: Sequence[QoSProfile], depth: int = 10) -> QoSProfile:
     """A subscription QoS compatible with every offered publisher QoS and as strong as they
-    allow: reliable if all publishers are reliable, transient local if all are."""
-    reliable = bool(offered) and all(q.reliability == "reliable" for q in offered)
-    latched = bool(offered) and all(q.durability == "transient_local" for q in offered)
-    return QoSProfile(
-        "reliable" if reliable else "best_effort",
-        "transient_local" if latched else "volatile",
-        "keep_last",
-        max(1, depth),
-    )
+    allow (:func:`dbcslam_ros.qos.adapt_to_offers`)."""
+    return adapt_to_offers(offered, depth)
 
 
 def add_qos_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,7 +4,7 @@ Nodes are plain ``rclpy.node.Node`` subclasses; this module only adds what rclpy
 differently or leaves out:
 
 - message classes by type name (:func:`message_class`, :func:`type_name_of`);
-- named QoS profiles (:func:`qos_profile`, see :mod:`dbcslam_ros.runtime.qos`) and a neutral,
+- named QoS profiles (:func:`qos_profile`, see :mod:`dbcslam_ros.qos`) and a neutral,
   plain-data view of rclpy QoS (:func:`neutral_qos`) for bag metadata;
 - exact CDR (:func:`encode`): ``rclpy.serialization.serialize_message`` returns a buffer of the
   *estimated* size whose padding is uninitialised; :func:`encode` and :func:`canonical_cdr`
@@ -39,8 +39,14 @@ from rclpy.time import Time
 from rclpy.utilities import remove_ros_args
 
 from dbcslam_ros.errors import MessageTypeError
+from dbcslam_ros.qos import (
+    PROFILES,
+    QoSProfile,
+    adapt_to_offers,
+    named_profile,
+    profile_from_policies,
+)
 from dbcslam_ros.ros_context import init_ros, spin_node
-from dbcslam_ros.runtime.qos import PROFILES, QoSProfile, named_profile
 from dbcslam_ros.runtime.typestore import get_typestore, normalize_type_name, register_msgdefs
 
 __all__ = [
@@ -148,12 +154,11 @@ def neutral_qos(qos: Any) -> QoSProfile:
     """Neutral profile of an rclpy ``QoSProfile`` (identity on a :class:`QoSProfile`)."""
     if isinstance(qos, QoSProfile):
         return qos
-    keep_all = qos.history == HistoryPolicy.KEEP_ALL
-    return QoSProfile(
-        "best_effort" if qos.reliability == ReliabilityPolicy.BEST_EFFORT else "reliable",
-        "transient_local" if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else "volatile",
-        "keep_all" if keep_all else "keep_last",
-        0 if keep_all else max(int(qos.depth), 1),
+    return profile_from_policies(
+        best_effort=qos.reliability == ReliabilityPolicy.BEST_EFFORT,
+        transient_local=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+        keep_all=qos.history == HistoryPolicy.KEEP_ALL,
+        depth=int(qos.depth),
     )
 
 
@@ -271,15 +276,7 @@ def adapted_subscription_qos(infos: list[Any], depth: int = 100) -> RclpyQoSProf
     rosbag2 recorder rule): reliable only if all offer reliable, transient local only if all
     offer transient local; keep last ``depth``. ``infos`` as from :func:`get_publishers_info`;
     with none, reliable + volatile."""
-    profiles = [neutral_qos(i.qos_profile) for i in infos]
-    reliable = all(p.reliability == "reliable" for p in profiles)
-    latched = bool(profiles) and all(p.durability == "transient_local" for p in profiles)
-    return make_qos(
-        "reliable" if reliable else "best_effort",
-        "transient_local" if latched else "volatile",
-        "keep_last",
-        depth,
-    )
+    return native_qos(adapt_to_offers([neutral_qos(i.qos_profile) for i in infos], depth))
 
 
 def spin_until(

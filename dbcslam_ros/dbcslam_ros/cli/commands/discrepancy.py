@@ -73,8 +73,8 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from dbcslam_core.discrepancy import DiscrepancyConfig
-    from dbcslam_ros.discrepancy_report import config_with, run_discrepancy
     from dbcslam_ros.errors import UsageError
+    from dbcslam_ros.offline.discrepancy_report import config_with, run_discrepancy
 
     for name in ("horizon", "max_starts", "stride", "particles", "workers"):
         value = getattr(args, name)

@@ -39,7 +39,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from dbcslam_ros.bag import find_bags
-    from dbcslam_ros.evaluate import evaluate_bag, metrics_table
+    from dbcslam_ros.offline.evaluate import evaluate_bag, metrics_table
 
     bags = find_bags(args.bag)
     results: dict[str, dict[str, Any]] = {}

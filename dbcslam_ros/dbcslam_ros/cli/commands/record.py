@@ -11,34 +11,17 @@ from dbcslam_ros.cli._common import (
     native_qos,
     node_session,
     positive_float,
-    runtime_qos_to_bag,
     subscription_qos_for,
 )
 from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.contract import CONTRACT_TOPICS, contract_qos_profile
 from dbcslam_ros.errors import BagError, UsageError
+from dbcslam_ros.qos import to_bag_qos
 
 __all__ = ["COMMAND", "RECORDER_NODE"]
 
 #: Node name of the recorder.
 RECORDER_NODE = "dbcslam_record"
-#: Topics of the interface contract and their types (``--contract``).
-CONTRACT_TOPICS: dict[str, str] = {
-    "/scenario": "std_msgs/msg/String",
-    "/joint_states": "sensor_msgs/msg/JointState",
-    "/object/wrench": "geometry_msgs/msg/WrenchStamped",
-    "/pusher/wrench": "geometry_msgs/msg/WrenchStamped",
-    "/object/pose": "geometry_msgs/msg/PoseStamped",
-    "/truth/object/pose": "geometry_msgs/msg/PoseStamped",
-    "/truth/contact_modes": "std_msgs/msg/Float64MultiArray",
-    "/truth/friction": "std_msgs/msg/Float64MultiArray",
-    "/dbcslam/pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "/dbcslam/odometry": "nav_msgs/msg/Odometry",
-    "/dbcslam/contact_modes": "std_msgs/msg/Float64MultiArray",
-    "/dbcslam/friction": "std_msgs/msg/Float64MultiArray",
-    "/dbcslam/friction_map": "nav_msgs/msg/OccupancyGrid",
-    "/dbcslam/markers": "visualization_msgs/msg/MarkerArray",
-    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-}
 #: Topics every rclpy node publishes; left out of "record everything" unless asked
 #: (``--include-ros-topics``) or named, as ``ros2 bag record`` does.
 ROS_INTERNAL_TOPICS = frozenset({"/rosout", "/parameter_events"})
@@ -116,7 +99,7 @@ class _Recorder:
                 self.skipped.add(topic)
                 continue
             offered = [i.qos_profile for i in infos if i.topic_type == type_name]
-            self.writer.add_topic(topic, type_name, [runtime_qos_to_bag(q) for q in offered])
+            self.writer.add_topic(topic, type_name, [to_bag_qos(q) for q in offered])
             qos = subscription_qos_for(offered, depth=_DEPTH)
 
             def on_message(data: bytes, topic: str = topic, type_name: str = type_name) -> None:
@@ -145,13 +128,12 @@ class _Recorder:
         """Subscribe now to every contract topic with its contract type and QoS (before any
         publisher exists, so the first messages of a node started next are not missed).
         A topic enters the bag with its first message."""
-        from dbcslam_ros.bag.qos import contract_qos
-
         for topic, type_name in CONTRACT_TOPICS.items():
             if not self.all_topics and topic not in self.wanted:
                 continue
-            bag_qos = contract_qos(topic)
-            qos = subscription_qos_for([_bag_qos_to_runtime(bag_qos)], depth=_DEPTH)
+            offered = contract_qos_profile(topic)
+            bag_qos = to_bag_qos(offered)
+            qos = subscription_qos_for([offered], depth=_DEPTH)
 
             def on_message(
                 data: bytes, topic: str = topic, type_name: str = type_name, bag_qos: Any = bag_qos
@@ -165,18 +147,6 @@ class _Recorder:
                 self.node, type_name, topic, on_message, native_qos(self.rt, qos)
             )
             print(f"recording {topic} [{type_name}]", file=sys.stderr, flush=True)
-
-
-def _bag_qos_to_runtime(qos: Any) -> Any:
-    from dbcslam_ros.bag.qos import QosDurability, QosReliability
-    from dbcslam_ros.runtime.qos import QoSProfile
-
-    return QoSProfile(
-        "reliable" if qos.reliability == QosReliability.RELIABLE else "best_effort",
-        "transient_local" if qos.durability == QosDurability.TRANSIENT_LOCAL else "volatile",
-        "keep_last",
-        max(1, int(qos.depth)),
-    )
 
 
 def _run(args: argparse.Namespace) -> int:

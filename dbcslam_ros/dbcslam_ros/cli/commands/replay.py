@@ -55,7 +55,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _params(args: argparse.Namespace) -> dict[str, Any]:
-    from dbcslam_ros.replay import load_filter_params
+    from dbcslam_ros.offline.replay import load_filter_params
 
     params: dict[str, Any] = {}
     if args.params:
@@ -84,8 +84,8 @@ def _params(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dbcslam_ros.evaluate import metrics_table
-    from dbcslam_ros.replay import ReplayOptions, replay_many
+    from dbcslam_ros.offline.evaluate import metrics_table
+    from dbcslam_ros.offline.replay import ReplayOptions, replay_many
 
     options = ReplayOptions(
         params=_params(args),
