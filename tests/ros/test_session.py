@@ -37,6 +37,9 @@ class RecordingFilter:
     def initialize(self, q_mean: Any, q_std: Any, joints: Any = None) -> None:
         self.inits.append({"q": list(q_mean), "std": list(q_std), "joints": joints})
 
+    def warm_up(self) -> float:
+        return 0.0
+
     def step(self, observation: Any, inputs: FilterInput) -> Any:
         self.steps.append((observation, inputs))
         return f"estimate{len(self.steps)}"

@@ -264,6 +264,7 @@ class FilterSession:
         self._dropped_since_step = False
         self._outliers_in_row = 0
         self._exceed_in_row = 0
+        self.warm_up_s = self._warm_up()  # before the first pose, not in its step
 
     # -- inputs ---------------------------------------------------------------------------
     def add_wrench(self, reading: WrenchReading) -> None:
@@ -558,6 +559,10 @@ class FilterSession:
             self._force.drop_after(keep_until_ns)
         self._last_pose_ns = None
         self._new_filter()
+
+    def _warm_up(self) -> float:
+        """`DbcSlamFilter.warm_up` of the new filter (seconds spent)."""
+        return 0.0 if self._filter is None else self._filter.warm_up()
 
     def _new_filter(self) -> None:
         rng = np.random.default_rng(self.seed + self.resets)
