@@ -43,7 +43,6 @@ from rclpy.utilities import ok, try_shutdown
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.extensions import ModelExtension
-from dbcslam_core.geometry import contact_kinematics
 from dbcslam_core.rbpf import FilterConfig
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros import contract
@@ -64,9 +63,9 @@ from dbcslam_ros.convert import (
     ns_to_stamp,
     pose_from_msg,
     wrench_from_msg,
-    yaw_to_quaternion,
 )
 from dbcslam_ros.errors import ParameterError
+from dbcslam_ros.markers import markers_message
 from dbcslam_ros.node.session import WINDOW, FilterSession, StampedEstimate
 from dbcslam_ros.ros_context import init_ros
 
@@ -140,13 +139,6 @@ def live_particles(kind: str) -> int:
 
 #: A filter step slower than this (s) is logged as a warning.
 SLOW_STEP_S = 0.5
-
-MODE_COLOURS = (
-    (0.6, 0.6, 0.6),  # separated: grey
-    (0.1, 0.8, 0.1),  # sticking: green
-    (0.95, 0.3, 0.1),  # sliding_pos: red-orange
-    (0.2, 0.3, 0.95),  # sliding_neg: blue
-)
 
 
 def load_extensions(path: str) -> tuple[ModelExtension, ...]:
@@ -459,95 +451,16 @@ class FilterCore:
 
     def _markers(self, res: StampedEstimate) -> Any:
         assert self.scenario is not None and self.session is not None
-        cls = rt.message_class
-        marker_cls = cls("visualization_msgs/msg/Marker")
-        point = cls("geometry_msgs/msg/Point")
-        colour = cls("std_msgs/msg/ColorRGBA")
-        header = cls("std_msgs/msg/Header")(stamp=ns_to_stamp(res.stamp_ns), frame_id=self.frame)
-        est = res.estimate
-        x, y, yaw = (float(v) for v in est.pose)
-        qx, qy, qz, qw = yaw_to_quaternion(yaw)
-        pose = cls("geometry_msgs/msg/Pose")(
-            position=point(x=x, y=y, z=0.0),
-            orientation=cls("geometry_msgs/msg/Quaternion")(x=qx, y=qy, z=qz, w=qw),
+        header = rt.message_class("std_msgs/msg/Header")(
+            stamp=ns_to_stamp(res.stamp_ns), frame_id=self.frame
         )
-        ident = cls("geometry_msgs/msg/Pose")(
-            position=point(x=0.0, y=0.0, z=0.0),
-            orientation=cls("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0),
+        return markers_message(
+            res.estimate,
+            self.scenario,
+            header,
+            n_particles=int(self.params["marker_particles"]),
+            joints=self.session.last_joints(),
         )
-        vec = cls("geometry_msgs/msg/Vector3")
-        markers = []
-        body = self.scenario.body
-        if body.shape == "polygon":
-            verts = [*body.vertices, body.vertices[0]]
-            markers.append(
-                marker_cls(
-                    header=header,
-                    ns="body",
-                    id=0,
-                    type=4,  # LINE_STRIP
-                    action=0,
-                    pose=pose,
-                    scale=vec(x=0.002, y=0.0, z=0.0),
-                    color=colour(r=1.0, g=1.0, b=0.0, a=1.0),
-                    points=[point(x=float(vx), y=float(vy), z=0.0) for vx, vy in verts],
-                )
-            )
-        else:
-            markers.append(
-                marker_cls(
-                    header=header,
-                    ns="body",
-                    id=0,
-                    type=2,  # SPHERE
-                    action=0,
-                    pose=pose,
-                    scale=vec(x=0.02, y=0.02, z=0.02),
-                    color=colour(r=1.0, g=1.0, b=0.0, a=1.0),
-                )
-            )
-        q, w = est.particle_poses, est.particle_weights
-        n = min(int(self.params["marker_particles"]), len(q))
-        idx = np.argsort(-w)[:n]
-        markers.append(
-            marker_cls(
-                header=header,
-                ns="particles",
-                id=1,
-                type=8,  # POINTS
-                action=0,
-                pose=ident,
-                scale=vec(x=0.003, y=0.003, z=0.0),
-                color=colour(r=0.8, g=0.8, b=0.8, a=0.6),
-                points=[point(x=float(q[i, 0]), y=float(q[i, 1]), z=0.0) for i in idx],
-            )
-        )
-        joints = self.session.last_joints()
-        q_mean = est.pose[: self.scenario.nq]
-        env = np.asarray(joints, dtype=np.float64) if joints else None
-        kin = contact_kinematics(self.scenario, q_mean, env, None)
-        pts, cols = [], []
-        for c in range(len(self.scenario.contacts)):
-            probs = est.modes[c]
-            m = int(np.argmax(probs))
-            r, g, b = MODE_COLOURS[m]
-            pts.append(point(x=float(kin.point[c, 0]), y=float(kin.point[c, 1]), z=0.0))
-            cols.append(colour(r=r, g=g, b=b, a=float(max(0.2, 1.0 - probs[0]))))
-        markers.append(
-            marker_cls(
-                header=header,
-                ns="contacts",
-                id=2,
-                type=7,  # SPHERE_LIST
-                action=0,
-                pose=ident,
-                scale=vec(x=0.008, y=0.008, z=0.008),
-                color=colour(r=1.0, g=1.0, b=1.0, a=1.0),
-                points=pts,
-                colors=cols,
-            )
-        )
-        return cls("visualization_msgs/msg/MarkerArray")(markers=markers)
 
     def diagnostics_values(self) -> dict[str, str]:
         """Key/values published in /diagnostics (also used by tests and `dbcslam demo`).
