@@ -1,8 +1,9 @@
 """The interface contract in one table: topic names, message types and QoS.
 
-Mirrors the topic tables of the contract (``/work/shared/CONTRACT.md``, documented in the
-README): every module that names a contract topic imports it from here, so a name, a type or a
-QoS is written once. QoS is the name of a profile of :data:`dbcslam_ros.qos.PROFILES`:
+Mirrors the topic tables of the contract (``../shared/CONTRACT.md`` beside the repository,
+documented in the README): every module that names a contract topic imports it from here, so
+a name, a type or a QoS is written once. QoS is the name of a profile of
+:data:`dbcslam_ros.qos.PROFILES`:
 
 - ``sensor_data`` (best effort, volatile, keep last 5): the sensor inputs,
 - ``latched`` (reliable, transient local, keep last 1): ``/scenario``,
