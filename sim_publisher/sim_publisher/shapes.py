@@ -14,31 +14,24 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from dbcslam_core.mass_properties import STAINLESS_STEEL_DENSITY
 from dbcslam_core.polygon import convex_hull
+from dbcslam_ros.importers.mitpush import SHAPES as DATASET_SHAPES
+from dbcslam_ros.importers.mitpush import ShapeFacts
 
 from .errors import ParamError
 
 __all__ = ["SHAPES", "SHAPE_DIR", "STEEL_DENSITY", "Outline", "ShapeInfo", "load_outline"]
 
 SHAPE_DIR: Path = Path(__file__).resolve().parent / "data" / "shapes"
-STEEL_DENSITY: float = 7950.0
+STEEL_DENSITY: float = STAINLESS_STEEL_DENSITY
 """kg/m^3, consistent with the dataset's rect1 mass (0.8374 kg for 90 x 90 x 13 mm)."""
 
+#: Dataset facts of one shape: mass (kg) and polar inertia about the centroid (kg m^2).
+ShapeInfo = ShapeFacts
 
-@dataclass(frozen=True)
-class ShapeInfo:
-    """Dataset facts of one shape: mass (kg) and polar inertia about the centroid (kg m^2)."""
-
-    mass: float
-    inertia: float
-
-
-SHAPES: dict[str, ShapeInfo] = {
-    "rect1": ShapeInfo(0.8374, 1.131e-3),
-    "ellip1": ShapeInfo(0.8937, 1.231e-3),
-    "ellip3": ShapeInfo(1.3338, 2.973e-3),
-    "hex": ShapeInfo(0.9827, 1.497e-3),
-}
+#: The dataset README's table of the four training shapes (the MIT importer's, one table).
+SHAPES: dict[str, ShapeInfo] = DATASET_SHAPES
 
 
 @dataclass(frozen=True)
