@@ -572,24 +572,28 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
             if truncated:
                 n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
                 continue
-            for c in range(n_c):
-                cand[c] = order[p, c, ranks[t, c]]
-            if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
-                lp = -np.inf
+            if lp > -np.inf:  # (a tuple with a dead mode stays -inf: no check needed)
+                for c in range(n_c):
+                    cand[c] = order[p, c, ranks[t, c]]
+                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                    lp = -np.inf
             n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
         if truncated:
             for r in range(n_pre):
                 t = pre_i[r]
                 lp = pre_v[r]
-                for c in range(n_c):
-                    cand[c] = order[p, c, ranks[t, c]]
-                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
-                    lp = -np.inf
+                if lp > -np.inf:
+                    for c in range(n_c):
+                        cand[c] = order[p, c, ranks[t, c]]
+                    if not _feasible(
+                        cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance
+                    ):
+                        lp = -np.inf
                 n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
         m = top_v[0] if np.isfinite(top_v[0]) else 0.0
         tot = 0.0
         for k in range(n_top):
-            e[k] = np.exp(top_v[k] - m)
+            e[k] = np.exp(top_v[k] - m) if top_v[k] > -np.inf else 0.0
             tot += e[k]
         tot = max(tot, 1e-300)
         n_valid = 0

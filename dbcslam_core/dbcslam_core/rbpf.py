@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core import kernels
+from dbcslam_core import contact_modes, kernels, step_kernels
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
@@ -37,7 +37,7 @@ from dbcslam_core.contact_modes import (
     sum_last,
 )
 from dbcslam_core.dynamics import PlanarModel
-from dbcslam_core.errors import ModelError
+from dbcslam_core.errors import ModelError, SolverError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
 from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
@@ -49,6 +49,7 @@ from dbcslam_core.observation import (
     PoseObservationModel,
     gaussian_log_density,
     gaussian_proposal,
+    observation_terms,
     sample_gaussian_proposal,
     wrap_angle,
 )
@@ -596,6 +597,12 @@ class DbcSlamFilter:
             None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
             for pr in range(self.n_pairs)
         ]
+        # the same as a (pairs, C) mask, and each contact's obstacle group (0..n-1), for
+        # the compiled phases
+        self._pair_mask = self._contact_pair[None, :] == np.arange(self.n_pairs)[:, None]
+        self._group_index = np.unique(self._contact_obstacle, return_inverse=True)[1].astype(
+            np.int64
+        )
 
     def _empty_particles(self) -> ParticleSet:
         """The particle set before initialisation (all contacts separated, prior friction)."""
@@ -741,10 +748,14 @@ class DbcSlamFilter:
         inp = self._read_inputs(observation, inputs, force)
         free = self._free_motion(inp)
         pred = self._predict_modes(free)
-        ent = self._live_entries(pred, free)
-        dyn = self._hypothesis_dynamics(ent, free, inp)
-        prop = self._propose(ent, dyn, inp)
-        post = self._discrete_posterior(ent, dyn, prop)
+        hyp = self._enumerate(pred, free)
+        if self._compiled_ok(inp, hyp):  # phases 4-6 in one compiled pass per row
+            prop, post = self._compiled_phases(hyp, pred, free, inp)
+        else:  # the numpy reference
+            ent = self._live_entries(hyp, pred)
+            dyn = self._hypothesis_dynamics(ent, free, inp)
+            prop = self._propose(ent, dyn, inp)
+            post = self._discrete_posterior(ent, dyn, prop)
         incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
         self._update_beliefs(post)
         log_ml = self._reweight(incr, inp)
@@ -761,7 +772,7 @@ class DbcSlamFilter:
             marg_post=post.marg_post,
             fric_pair=post.fric_pair,
             ess=ess,
-            live=float(ent.hyp.n_live.mean()),
+            live=float(hyp.n_live.mean()),
             log_ml=log_ml,
             resampled=resampled,
         )
@@ -862,15 +873,19 @@ class DbcSlamFilter:
             dt=self.dt,
         )
 
-    def _live_entries(self, pred: FloatArray, free: _FreeMotion) -> _Entries:
-        """Joint mode hypotheses per particle, compacted from the padded (P, K) layout to the
-        N live entries, with their log prior per friction hypothesis (N, B)."""
+    def _enumerate(self, pred: FloatArray, free: _FreeMotion) -> Hypotheses:
+        """Joint mode hypotheses per row (padded (R, K) layout) from the predicted marginals
+        averaged over the friction belief."""
         cfg = self.config
-        n_p = self.particles.size
         marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
-        hyp = enumerate_hypotheses(
+        return enumerate_hypotheses(
             marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
         )
+
+    def _live_entries(self, hyp: Hypotheses, pred: FloatArray) -> _Entries:
+        """The joint mode hypotheses compacted from the padded (P, K) layout to the N live
+        entries, with their log prior per friction hypothesis (N, B)."""
+        n_p = self.particles.size
         n_k = hyp.modes.shape[1]
         pi, ki = np.nonzero(hyp.valid)
         slot = np.full((n_p, n_k), -1, dtype=np.int64)
@@ -912,17 +927,153 @@ class DbcSlamFilter:
         # Process noise is force noise: a perturbation e of the free velocity reaches v'
         # through the response map of the hypothesis (constrained directions are absorbed by
         # the contact impulses), plus a small isotropic part.
-        boost = 1.0
-        if cfg.warmup_steps > 0:
-            boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
-        sig2 = (self._sigma_v * boost) ** 2
+        sig2 = self._velocity_noise()
         if inp.force is not None and inp.force_obstacle is not None:
             log_alpha = log_alpha + self._force_log_likelihood(
-                inp.force, inp.force_obstacle, sol, free.kin.normal[ent.pi], sig2
+                inp.force,
+                inp.force_obstacle,
+                (sol.ln, sol.lt, sol.impulse_response),
+                free.kin.normal[ent.pi],
+                sig2,
             )
         resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
         return _Dynamics(sol.v_next, log_alpha, cov_h)
+
+    def _velocity_noise(self) -> FloatArray:
+        """Velocity process-noise variances (nv,) of this step (inflated during warm-up)."""
+        cfg = self.config
+        boost = 1.0
+        if cfg.warmup_steps > 0:
+            boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
+        return np.asarray((self._sigma_v * boost) ** 2, dtype=np.float64)
+
+    def _compiled_ok(self, inp: _StepInputs, hyp: Hypotheses) -> bool:
+        """Whether phases 4-6 can run compiled (`step_kernels`): numba present, the compiled
+        backend selected (`contact_modes.DEFAULT_BACKEND`), a reading of every pose dim (or
+        none), and live hypotheses that form a prefix of each row (as enumerated)."""
+        if not (step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled"):
+            return False
+        lin = inp.lin
+        if lin is not None and not (
+            lin.index.size == self.nq and np.array_equal(lin.index, np.arange(self.nq))
+        ):
+            return False
+        n_live = hyp.n_live
+        width = hyp.valid.shape[1]
+        return bool(np.array_equal(hyp.valid, np.arange(width)[None, :] < n_live[:, None]))
+
+    def _compiled_phases(
+        self, hyp: Hypotheses, pred: FloatArray, free: _FreeMotion, inp: _StepInputs
+    ) -> tuple[_Proposal, _Posterior]:
+        """Phases 4-6 (`_hypothesis_dynamics`, `_propose`, `_discrete_posterior`) through the
+        compiled kernels of `step_kernels`: the same equations per element, the same random
+        numbers in the same order, values equal to round-off."""
+        cfg = self.config
+        ps = self.particles
+        n_r = ps.size
+        n_live = hyp.n_live
+        starts = np.zeros(n_r + 1, dtype=np.int64)
+        np.cumsum(n_live, out=starts[1:])
+        modes_n = hyp.modes[hyp.valid]  # (N, C), rows in order
+        kin = free.kin
+        prev_in = None
+        if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per row
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
+        sig2 = self._velocity_noise()
+        sensitivity = inp.force is not None
+        with np.errstate(divide="ignore"):
+            log_pred = np.log(pred)
+        out, n_bad = step_kernels.entry_dynamics(
+            starts,
+            modes_n,
+            jn=kin.Jn,
+            jt=kin.Jt,
+            phi=kin.phi,
+            vn_env=kin.vn_env,
+            vt_env=kin.vt_env,
+            v_free=free.v_free[:, None, :] if free.v_free_b is None else free.v_free_b,
+            inv_mass=self._inv_mass,
+            mass=free.m_eff,
+            mu=self._mu,
+            row_b=self._sub_b,
+            group=self._group_index,
+            prev_in=prev_in,
+            log_pred=log_pred,
+            fric=ps.fric,
+            sig2=sig2,
+            params=(
+                self.dt,
+                1e-10,  # eps_rel of `solve_reduced`
+                self._scales.impulse,
+                self._scales.velocity,
+                self._scales.impulse_floor,
+                cfg.gap_closure,
+                -1.0 if cfg.gap_tolerance is None else cfg.gap_tolerance,
+                cfg.constrained_noise,
+            ),
+            sensitivity=sensitivity,
+        )
+        if n_bad or not np.isfinite(out["v_next"]).all():
+            msg = (
+                f"reduced dynamics system is singular for {max(n_bad, 1)} of "
+                f"{out['score'].size} assignments"
+            )
+            raise SolverError(msg)
+        log_alpha = out["log_alpha"]
+        if inp.force is not None and inp.force_obstacle is not None:
+            pi = np.repeat(np.arange(n_r), n_live)
+            log_alpha = log_alpha + self._force_log_likelihood(
+                inp.force,
+                inp.force_obstacle,
+                (out["ln"], out["lt"], out["impulse_response"]),
+                kin.normal[pi],
+                sig2,
+            )
+        # the random numbers of the numpy path, in its order: Gumbel uniforms over the
+        # padded (K, F) layout, then the normals of v' and of the position noise
+        uniforms = self._shared_draws(self.rng.random, (n_r, hyp.modes.shape[1] * self.n_fb))
+        gumbel = -np.log(-np.log(uniforms))
+        normals = self.rng.standard_normal if self._n_sub == 1 else self._shared_normals
+        z_v = normals((n_r, self.nq))
+        z_q = normals((n_r, self.nq))
+        lin = inp.lin
+        _, s_diag, q_gain, q_std = observation_terms(lin, self._sigma_q, self.nq)
+        res = step_kernels.propose_rows(
+            starts,
+            modes_n,
+            q=ps.q,
+            v_h=out["v_next"],
+            cov=out["cov"],
+            log_alpha=log_alpha,
+            observation=None if lin is None else (lin.value, lin.angular, s_diag),
+            q_gain=q_gain,
+            q_std=q_std,
+            dt=self.dt,
+            gumbel=gumbel,
+            z_v=z_v,
+            z_q=z_q,
+            pair_mask=self._pair_mask,
+        )
+        pair_in = res["pair_in"]
+        if self._surface_pair is not None:
+            pair_in[:, self._surface_pair] = 1.0  # always on the support
+        marg_post = res["marg_post"]
+        fric_post = res["fric_post"]
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
+        post = _Posterior(
+            fric_post,
+            fric_pair,
+            res["modes_post"],
+            marg_post,
+            pair_in,
+            1.0 - marg_post[:, :, Mode.SEPARATED],
+        )
+        return _Proposal(res["incr"], res["v_new"], res["q_new"]), post
 
     def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
         """Optimal proposal: per entry x friction the Gaussian posterior of v' given the
@@ -1210,25 +1361,26 @@ class DbcSlamFilter:
         self,
         force: ForceObservation,
         obstacle: int,
-        sol: ReducedSolution,
+        impulses: tuple[FloatArray, FloatArray, FloatArray | None],
         normal: FloatArray,
         sig2: FloatArray,
     ) -> FloatArray:
         """log-likelihood (N, B) of a force reading; see :mod:`dbcslam_core.force_likelihood`.
 
-        sol: the reduced solution (impulses (N, B, C) and their sensitivity to the free
-        velocity); normal (N, C, 2) contact normals (into the body, world frame); sig2 (nv,)
-        the velocity process-noise variances of the step.
+        impulses: (ln, lt) (N, B, C) of the reduced solutions and their sensitivity to the
+        free velocity (N, B, 2, C, nv) or None; normal (N, C, 2) contact normals (into the
+        body, world frame); sig2 (nv,) the velocity process-noise variances of the step.
         """
+        ln, lt, ir_all = impulses
         sel = self._contact_obstacle == obstacle
         std = self.config.force_noise if force.std is None else force.std
-        ir = None if sol.impulse_response is None else sol.impulse_response[..., sel, :]
+        ir = None if ir_all is None else ir_all[..., sel, :]
         return force_log_likelihood(
             (force.fx, force.fy),
             std,
             normal[:, None, sel, :],
-            sol.ln[..., sel],
-            sol.lt[..., sel],
+            ln[..., sel],
+            lt[..., sel],
             dt=self.dt,
             impulse_response=ir,
             sig2=sig2,

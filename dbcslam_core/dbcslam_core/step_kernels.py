@@ -1,0 +1,806 @@
+"""Compiled phases 4-6 of the filter step (numba): hypothesis dynamics, optimal proposal and
+closed-form discrete posterior, one loop over the live (particle, joint mode hypothesis)
+entries instead of ~100 numpy passes over padded (particles x hypotheses x friction) arrays.
+
+The numpy path of `rbpf.DbcSlamFilter` (`_hypothesis_dynamics`, `_propose`,
+`_discrete_posterior`) is the reference; these kernels compute the same equations in the
+same order per element (values equal to round-off, `tests/core/test_step_kernels.py`):
+
+* `entry_dynamics`: per live entry n (row pi[n] of the state arrays, modes md[n]) and
+  friction hypothesis f: the contact gap the entry closes (`transition.contact_gap`), the
+  reduced dynamics (`kernels._kernel`, the same loop, with the row's kinematics read in place
+  instead of gathered per entry), the log prior sum_c log_pred[p, f, c, mode_c], the
+  discrete proposal weight log alpha = log fric[p, f] + l - lse_k(l), l = log prior - score / 2,
+  and the velocity noise covariance R diag(sig2) R^T + constrained_noise diag(sig2).
+* `propose_rows`: per row p: the Kalman-form proposal of every entry x friction
+  (`kernels._gaussian_kernel`), the evidence lse(log alpha + log p(o)), one (entry,
+  friction) drawn by Gumbel-max (Gumbel draws from the caller), v' and the position noise
+  from its Gaussian (standard normals drawn by the caller), then the discrete posterior given
+  v': friction (R, F), per-contact mode marginals given f (R, F, C, 4) and overall (R, C, 4),
+  and P(pair in contact) (R, pairs).
+
+Entries of a row are contiguous: starts[p] .. starts[p + 1] (R + 1,). Units as in
+`contact_modes.solve_reduced` and `observation.gaussian_proposal` (SI, world frame).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from dbcslam_core import kernels
+
+__all__ = ["AVAILABLE", "entry_dynamics", "propose_rows"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+AVAILABLE = kernels.AVAILABLE
+
+_SEP, _STICK, _POS, _NEG = 0, 1, 2, 3
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def _row_mw(  # noqa: PLR0917 - numba helper: positional arrays
+    p: int,
+    jn: FloatArray,
+    jt: FloatArray,
+    minv: FloatArray,
+    mass: FloatArray,
+    has_mass: bool,
+    mw: FloatArray,
+    lu: FloatArray,
+    rhs_m: FloatArray,
+) -> int:
+    """M^-1 [Jn; Jt]^T rows of row p into mw (F, 2C, nv) (one per friction hypothesis with
+    a mass per (row, f), else mw[0]); returns the number of singular mass matrices."""
+    n_c = jn.shape[1]
+    nv = jn.shape[2]
+    n_bad = 0
+    if has_mass:
+        for f in range(mass.shape[1]):
+            for i in range(nv):
+                for j in range(nv):
+                    lu[i, j] = mass[p, f, i, j]
+                for c in range(n_c):
+                    rhs_m[i, c] = jn[p, c, i]
+                    rhs_m[i, n_c + c] = jt[p, c, i]
+            if not kernels._lu_solve_inplace(lu, rhs_m, nv, 2 * n_c):
+                n_bad += 1
+            for c in range(2 * n_c):
+                for i in range(nv):
+                    mw[f, c, i] = rhs_m[i, c]
+    else:
+        for c in range(n_c):
+            for i in range(nv):
+                mw[0, c, i] = jn[p, c, i] * minv[i]
+                mw[0, n_c + c, i] = jt[p, c, i] * minv[i]
+    return n_bad
+
+
+def _entry_gap(
+    phi: float, in_contact: bool, closure: float, tolerance: float, prev: float
+) -> float:
+    """`transition.contact_gap` of one contact (tolerance < 0: None; prev < 0: no previous
+    contact probability)."""
+    if tolerance < 0.0:
+        if closure >= 1.0:
+            return phi
+        if in_contact and phi > 0.0:
+            return closure * phi
+        return phi
+    band = tolerance
+    if prev >= 0.0:
+        band = tolerance * min(max(prev, 0.0), 1.0)
+    residual = min(max(phi, -tolerance), band)
+    if in_contact:
+        return phi - (1.0 - closure) * residual
+    return phi
+
+
+def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
+    starts: IntArray,
+    md: IntArray,
+    jn: FloatArray,
+    jt: FloatArray,
+    phi_row: FloatArray,
+    vne: FloatArray,
+    vte: FloatArray,
+    vf: FloatArray,
+    minv: FloatArray,
+    mass: FloatArray,
+    has_mass: bool,
+    mu_tab: FloatArray,
+    row_b: IntArray,
+    group: IntArray,
+    n_groups: int,
+    params: FloatArray,
+    prev_in: FloatArray,
+    has_prev: bool,
+    sensitivity: bool,
+    log_pred: FloatArray,
+    fric: FloatArray,
+    sig2: FloatArray,
+    v_next: FloatArray,
+    ln: FloatArray,
+    lt: FloatArray,
+    score: FloatArray,
+    resp: FloatArray,
+    irs: FloatArray,
+    cov: FloatArray,
+    log_alpha: FloatArray,
+) -> int:
+    """Fill the per-(entry, friction) outputs; returns the number of singular systems.
+
+    params = (dt, eps_rel, impulse scale, velocity scale, impulse floor, gap closure, gap
+    tolerance (< 0: None), constrained noise). vf (R, Fv, nv) with Fv in (1, F): with Fv = F
+    or a mass per (row, f) the geometry differs per f (no sharing of friction-free solves).
+    The steps within an element are those of `kernels._kernel`.
+    """
+    dt, eps_rel, sc_impulse, sc_velocity, sc_floor = (
+        params[0],
+        params[1],
+        params[2],
+        params[3],
+        params[4],
+    )
+    closure, tolerance, c_noise = params[5], params[6], params[7]
+    n_r = starts.shape[0] - 1
+    n_c = md.shape[1]
+    nv = jn.shape[2]
+    n_f = log_alpha.shape[1]
+    two_c = 2 * n_c
+    shared = (not has_mass) and vf.shape[1] == 1
+    n_max = 0
+    for n in range(md.shape[0]):
+        cnt = 0
+        for c in range(n_c):
+            if md[n, c] != _SEP:
+                cnt += 1
+        n_max = max(n_max, cnt)
+    mw = np.empty((mass.shape[1] if has_mass else 1, two_c, nv))
+    lu = np.empty((nv, nv))
+    rhs_m = np.empty((nv, two_c))
+    rows = np.empty(two_c, dtype=np.int64)
+    grow = np.empty((two_c, nv))
+    frow = np.empty((two_c, nv))
+    amat = np.empty((two_c, two_c))
+    x = np.empty((two_c, 1 + nv))
+    cpl = np.zeros(n_c)
+    lt_g = np.zeros(max(n_groups, 1))
+    cap_g = np.zeros(max(n_groups, 1))
+    mag_g = np.zeros(max(n_groups, 1))
+    an = np.empty(n_c)
+    at = np.empty(n_c)
+    ph = np.empty(n_c)
+    n_bad = 0
+    for p in range(n_r):
+        if starts[p + 1] == starts[p]:
+            continue
+        n_bad += _row_mw(p, jn, jt, minv, mass, has_mass, mw, lu, rhs_m)
+        for n in range(starts[p], starts[p + 1]):
+            n_act = 0
+            n_stick = 0
+            slides = False
+            for c in range(n_c):
+                mc = md[n, c]
+                if mc != _SEP:
+                    n_act += 1
+                if mc == _STICK:
+                    n_stick += 1
+                if mc >= _POS:
+                    slides = True
+                prev = prev_in[p, c] if has_prev else -1.0
+                ph[c] = _entry_gap(phi_row[p, c], mc != _SEP, closure, tolerance, prev)
+            u_row = row_b[p]
+            for f in range(n_f):
+                fv = f if vf.shape[1] > 1 else 0
+                fm = f if has_mass else 0
+                u = u_row if u_row >= 0 else f
+                if f > 0 and shared and not slides:
+                    for c in range(n_c):
+                        ln[n, f, c] = ln[n, 0, c]
+                        lt[n, f, c] = lt[n, 0, c]
+                    for i in range(nv):
+                        v_next[n, f, i] = v_next[n, 0, i]
+                        for j in range(nv):
+                            resp[n, f, i, j] = resp[n, 0, i, j]
+                    if sensitivity:
+                        for k in range(2):
+                            for c in range(n_c):
+                                for i in range(nv):
+                                    irs[n, f, k, c, i] = irs[n, 0, k, c, i]
+                else:
+                    for c in range(n_c):
+                        sn = 0.0
+                        st = 0.0
+                        for i in range(nv):
+                            sn += jn[p, c, i] * vf[p, fv, i]
+                            st += jt[p, c, i] * vf[p, fv, i]
+                        an[c] = sn - vne[p, c] + ph[c] / dt
+                        at[c] = st - vte[p, c]
+                    for i in range(nv):
+                        v_next[n, f, i] = vf[p, fv, i]
+                        for j in range(nv):
+                            resp[n, f, i, j] = 1.0 if i == j else 0.0
+                    for c in range(n_c):
+                        ln[n, f, c] = 0.0
+                        lt[n, f, c] = 0.0
+                        cpl[c] = 0.0
+                        if md[n, c] == _POS:
+                            cpl[c] = mu_tab[u, c]
+                        elif md[n, c] == _NEG:
+                            cpl[c] = -mu_tab[u, c]
+                    if sensitivity:
+                        for k in range(2):
+                            for c in range(n_c):
+                                for i in range(nv):
+                                    irs[n, f, k, c, i] = 0.0
+                    if n_act > 0:
+                        extra = n_max - n_act
+                        dsum = 0.0
+                        for c in range(n_c):
+                            take = md[n, c] != _SEP
+                            if not take and extra > 0:
+                                take = True
+                                extra -= 1
+                            if take:
+                                for i in range(nv):
+                                    dsum += (
+                                        jn[p, c, i] * mw[fm, c, i]
+                                        + jt[p, c, i] * mw[fm, n_c + c, i]
+                                    )
+                        eps = eps_rel * max(dsum / (2 * n_max), 1e-300)
+                        r = 0
+                        for c in range(n_c):
+                            if md[n, c] != _SEP:
+                                rows[r] = c
+                                for i in range(nv):
+                                    grow[r, i] = jn[p, c, i]
+                                    frow[r, i] = mw[fm, c, i] - cpl[c] * mw[fm, n_c + c, i]
+                                x[r, 0] = -an[c]
+                                r += 1
+                        for c in range(n_c):
+                            if md[n, c] == _STICK:
+                                rows[r] = n_c + c
+                                for i in range(nv):
+                                    grow[r, i] = jt[p, c, i]
+                                    frow[r, i] = mw[fm, n_c + c, i]
+                                x[r, 0] = -at[c]
+                                r += 1
+                        for i in range(r):
+                            for j in range(nv):
+                                x[i, 1 + j] = -grow[i, j]
+                            for j in range(r):
+                                s = 0.0
+                                for k in range(nv):
+                                    s += grow[i, k] * frow[j, k]
+                                amat[i, j] = s
+                            amat[i, i] += eps
+                        if not kernels._lu_solve_inplace(amat, x, r, 1 + nv):
+                            n_bad += 1
+                        for j in range(r):
+                            for i in range(nv):
+                                v_next[n, f, i] += frow[j, i] * x[j, 0]
+                                for k in range(nv):
+                                    resp[n, f, i, k] += frow[j, i] * x[j, 1 + k]
+                        for j in range(r):
+                            slot = rows[j]
+                            if slot < n_c:
+                                ln[n, f, slot] = x[j, 0]
+                            else:
+                                lt[n, f, slot - n_c] = x[j, 0]
+                        for c in range(n_c):
+                            lt[n, f, c] -= cpl[c] * ln[n, f, c]
+                        if sensitivity:
+                            for j in range(r):
+                                slot = rows[j]
+                                k = 0 if slot < n_c else 1
+                                for i in range(nv):
+                                    irs[n, f, k, slot % n_c, i] = x[j, 1 + i]
+                            for c in range(n_c):
+                                for i in range(nv):
+                                    irs[n, f, 1, c, i] -= cpl[c] * irs[n, f, 0, c, i]
+                # -- violation score of (n, f) (as kernels._kernel) --------------------------
+                v_sq = 0.0
+                imp = 0.0
+                for k in range(n_groups):
+                    lt_g[k] = 0.0
+                    cap_g[k] = 0.0
+                    mag_g[k] = 0.0
+                for c in range(n_c):
+                    sn = 0.0
+                    st = 0.0
+                    for i in range(nv):
+                        sn += jn[p, c, i] * v_next[n, f, i]
+                        st += jt[p, c, i] * v_next[n, f, i]
+                    gr = sn - vne[p, c] + ph[c] / dt
+                    vtc = st - vte[p, c]
+                    mc = md[n, c]
+                    v_neg = 0.0
+                    if mc == _SEP:
+                        v_neg = -gr
+                    elif mc == _POS:
+                        v_neg = -vtc
+                    elif mc == _NEG:
+                        v_neg = vtc
+                    if v_neg > 0.0:
+                        v_sq += (v_neg / sc_velocity) ** 2
+                    lnc = ln[n, f, c]
+                    ltc = lt[n, f, c]
+                    mag = abs(lnc) + abs(ltc) + sc_floor
+                    if mc != _SEP and lnc < 0.0:
+                        imp += (-lnc / mag / sc_impulse) ** 2
+                    if mc == _STICK:
+                        k = group[c]
+                        lt_g[k] += ltc
+                        cap_g[k] += mu_tab[u, c] * lnc
+                        mag_g[k] += mag - sc_floor
+                for k in range(n_groups):
+                    viol = abs(lt_g[k]) - cap_g[k]
+                    if viol > 0.0:
+                        imp += (viol / (mag_g[k] + sc_floor) / sc_impulse) ** 2
+                score[n, f] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
+                # -- velocity noise covariance R diag(sig2) R^T + c diag(sig2) ---------------
+                for i in range(nv):
+                    for j in range(nv):
+                        s = 0.0
+                        for k in range(nv):
+                            s += resp[n, f, i, k] * sig2[k] * resp[n, f, j, k]
+                        cov[n, f, i, j] = s + (c_noise * sig2[i] if i == j else 0.0)
+                # -- log prior (sum over contacts) and l = log prior - score / 2 -------------
+                lp = 0.0
+                for c in range(n_c):
+                    lp += log_pred[p, f, c, md[n, c]]
+                log_alpha[n, f] = lp - 0.5 * score[n, f]
+        # -- normalise l over the row's entries per f, times the friction belief -------------
+        for f in range(n_f):
+            m = -np.inf
+            for n in range(starts[p], starts[p + 1]):
+                m = max(m, log_alpha[n, f])
+            if not np.isfinite(m):
+                m = 0.0
+            tot = 0.0
+            for n in range(starts[p], starts[p + 1]):
+                tot += math.exp(log_alpha[n, f] - m)
+            lse = (math.log(tot) if tot > 0.0 else -np.inf) + m
+            lf = math.log(fric[p, f]) if fric[p, f] > 0.0 else -np.inf
+            for n in range(starts[p], starts[p + 1]):
+                log_alpha[n, f] = lf + (log_alpha[n, f] - lse)
+    return n_bad
+
+
+def _wrap(a: float) -> float:
+    """`angles.wrap_angle` of one angle (rad, to [-pi, pi))."""
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _chol_lower(a: FloatArray, low: FloatArray, n: int) -> None:
+    """Lower Cholesky factor of a[:n, :n] into low: the operations of `observation._chol_of`
+    in its order (sums of products, then one subtraction; pivots clipped at 1e-300)."""
+    for j in range(n):
+        d = a[j, j]
+        if j:
+            s = low[j, 0] * low[j, 0]
+            for k in range(1, j):
+                s = s + low[j, k] * low[j, k]
+            d = d - s
+        ljj = math.sqrt(max(d, 1e-300))
+        low[j, j] = ljj
+        for i in range(j + 1, n):
+            num = a[i, j]
+            if j:
+                s = low[i, 0] * low[j, 0]
+                for k in range(1, j):
+                    s = s + low[i, k] * low[j, k]
+                num = num - s
+            low[i, j] = num / ljj
+
+
+def _lse_row(vals: FloatArray, n: int) -> float:
+    """log sum exp of vals[:n], max-shifted (all -inf -> -inf)."""
+    m = -np.inf
+    for i in range(n):
+        m = max(m, vals[i])
+    if not np.isfinite(m):
+        m = 0.0
+    tot = 0.0
+    for i in range(n):
+        tot += math.exp(vals[i] - m)
+    return (math.log(tot) if tot > 0.0 else -np.inf) + m
+
+
+def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    starts: IntArray,
+    md: IntArray,
+    q: FloatArray,
+    v_h: FloatArray,
+    cov: FloatArray,
+    log_alpha: FloatArray,
+    has_obs: bool,
+    obs_value: FloatArray,
+    angular: BoolArray,
+    s_diag: FloatArray,
+    q_gain: FloatArray,
+    q_std: FloatArray,
+    dt: float,
+    gumbel: FloatArray,
+    z_v: FloatArray,
+    z_q: FloatArray,
+    pair_mask: BoolArray,
+    incr: FloatArray,
+    v_new: FloatArray,
+    q_new: FloatArray,
+    fric_post: FloatArray,
+    modes_post: FloatArray,
+    marg_post: FloatArray,
+    pair_in: FloatArray,
+) -> None:
+    """Per row p: proposal of each (entry, f), evidence, the Gumbel-max draw over the
+    padded (K, F) layout (gumbel (R, K F)), the sampled v', q' and the discrete
+    posterior given v' (see the module docstring)."""
+    n_r = starts.shape[0] - 1
+    n_c = md.shape[1]
+    n_f = log_alpha.shape[1]
+    nv = v_h.shape[2]
+    nq = q.shape[1]
+    n_pairs = pair_mask.shape[0]
+    k_max = 1
+    for p in range(n_r):
+        k_max = max(k_max, starts[p + 1] - starts[p])
+    m_max = k_max * n_f
+    lj = np.empty(m_max)
+    lpost = np.empty(m_max)
+    y_all = np.empty((m_max, nq))
+    vm_all = np.empty((m_max, nv))
+    vc_all = np.empty((m_max, nv, nv))
+    low = np.zeros((nv, nv))
+    z = np.empty((nv, nv + 1))
+    a = np.empty((nv, nv))
+    corr = np.empty(nv)
+    tiny = 1e-12
+    dt2 = dt * dt
+    for p in range(n_r):
+        s0 = starts[p]
+        n_e = starts[p + 1] - s0
+        n_m = n_e * n_f
+        # -- proposal of every (entry, f): log p(o), innovation, posterior of v' ----------
+        for e in range(n_e):
+            n = s0 + e
+            for f in range(n_f):
+                m = e * n_f + f
+                if not has_obs:
+                    lj[m] = log_alpha[n, f]
+                    for i in range(nq):
+                        y_all[m, i] = 0.0
+                    for i in range(nv):
+                        vm_all[m, i] = v_h[n, f, i]
+                        for j in range(nv):
+                            vc_all[m, i, j] = cov[n, f, i, j]
+                    continue
+                for i in range(nq):
+                    r = obs_value[i] - (q[p, i] + dt * v_h[n, f, i])
+                    y_all[m, i] = _wrap(r) if angular[i] else r
+                for j in range(nv):
+                    d = dt2 * cov[n, f, j, j] + s_diag[j, j]
+                    for k in range(j):
+                        d -= low[j, k] * low[j, k]
+                    ljj = math.sqrt(max(d, 1e-300))
+                    low[j, j] = ljj
+                    for i in range(j + 1, nv):
+                        num = dt2 * cov[n, f, i, j] + s_diag[i, j]
+                        for k in range(j):
+                            num -= low[i, k] * low[j, k]
+                        low[i, j] = num / ljj
+                logdet = 0.0
+                maha = 0.0
+                for i in range(nv):
+                    z[i, 0] = y_all[m, i]
+                    for v in range(nv):
+                        z[i, 1 + v] = cov[n, f, v, i] * dt
+                    for col in range(nv + 1):
+                        s = 0.0
+                        for k in range(i):
+                            s += low[i, k] * z[k, col]
+                        z[i, col] = (z[i, col] - s) / low[i, i]
+                    maha += z[i, 0] * z[i, 0]
+                    logdet += math.log(low[i, i])
+                log_pred = -0.5 * (maha + 2.0 * logdet + nv * _LOG_2PI)
+                lj[m] = log_alpha[n, f] + log_pred
+                for aa in range(nv):
+                    cx = 0.0
+                    for i in range(nv):
+                        cx += z[i, 1 + aa] * z[i, 0]
+                    vm_all[m, aa] = v_h[n, f, aa] + cx
+                    for bb in range(nv):
+                        cx = 0.0
+                        for i in range(nv):
+                            cx += z[i, 1 + aa] * z[i, 1 + bb]
+                        vc_all[m, aa, bb] = cov[n, f, aa, bb] - cx
+        incr[p] = _lse_row(lj, n_m)
+        # -- Gumbel-max draw of one (entry, f) -------------------------------------------
+        best = -np.inf
+        pick = 0
+        for m in range(n_m):
+            if np.isfinite(lj[m]):
+                g = lj[m] + gumbel[p, m]
+                if g > best:
+                    best = g
+                    pick = m
+        # (m = e n_f + f is the flat index k n_f + f of the padded layout: e == k)
+        n_star = s0 + pick // n_f
+        f_star = pick % n_f
+        # -- v' ~ N(v_mean, v_cov) (symmetrised, jittered), then e_q | v' ------------------
+        scale = 0.0
+        for i in range(nv):
+            for j in range(nv):
+                a[i, j] = 0.5 * (vc_all[pick, i, j] + vc_all[pick, j, i])
+            scale = abs(a[0, 0]) if i == 0 else max(scale, abs(a[i, i]))
+        for i in range(nv):
+            a[i, i] += 1e-12 * max(scale, 1e-300)
+        _chol_lower(a, low, nv)
+        for i in range(nv):
+            s = low[i, 0] * z_v[p, 0]
+            for k in range(1, i + 1):
+                s = s + low[i, k] * z_v[p, k]
+            corr[i] = s
+        for i in range(nv):
+            v_new[p, i] = vm_all[pick, i] + corr[i]
+        for i in range(nq):
+            e_q = q_std[i] * z_q[p, i]
+            if has_obs:
+                r = y_all[pick, i] - dt * (v_new[p, i] - v_h[n_star, f_star, i])
+                e_q = q_gain[i] * r + e_q
+            else:
+                e_q = 0.0 + e_q
+            q_new[p, i] = q[p, i] + dt * v_new[p, i] + e_q
+        if nq == 3:
+            q_new[p, 2] = _wrap(q_new[p, 2])
+        # -- discrete posterior given v' ----------------------------------------------------
+        for e in range(n_e):
+            n = s0 + e
+            for f in range(n_f):
+                m = e * n_f + f
+                if not np.isfinite(log_alpha[n, f]):
+                    lpost[m] = -np.inf
+                    continue
+                for i in range(nv):
+                    for j in range(nv):
+                        a[i, j] = cov[n, f, i, j]
+                _chol_lower(a, low, nv)
+                maha = 0.0
+                logdet = 0.0
+                for i in range(nv):
+                    acc = v_new[p, i] - v_h[n, f, i]
+                    if i:
+                        s = low[i, 0] * corr[0]
+                        for k in range(1, i):
+                            s = s + low[i, k] * corr[k]
+                        acc = acc - s
+                    corr[i] = acc / low[i, i]
+                    maha += corr[i] * corr[i]
+                    logdet += math.log(low[i, i])
+                dens = -0.5 * (maha + 2.0 * logdet + nv * _LOG_2PI)
+                lpost[m] = log_alpha[n, f] + dens
+        norm = _lse_row(lpost, n_m)
+        for f in range(n_f):
+            fric_post[p, f] = 0.0
+            for c in range(n_c):
+                for mo in range(4):
+                    modes_post[p, f, c, mo] = 0.0
+        for pr in range(n_pairs):
+            pair_in[p, pr] = 0.0
+        for e in range(n_e):
+            n = s0 + e
+            p_n = 0.0
+            for f in range(n_f):
+                w = math.exp(lpost[e * n_f + f] - norm)
+                fric_post[p, f] += w
+                p_n += w
+                for c in range(n_c):
+                    modes_post[p, f, c, md[n, c]] += w
+            for pr in range(n_pairs):
+                touch = False
+                for c in range(n_c):
+                    if pair_mask[pr, c] and md[n, c] != _SEP:
+                        touch = True
+                if touch:
+                    pair_in[p, pr] += p_n
+        for c in range(n_c):
+            for mo in range(4):
+                s = modes_post[p, 0, c, mo]
+                for f in range(1, n_f):
+                    s += modes_post[p, f, c, mo]
+                marg_post[p, c, mo] = s
+        for f in range(n_f):
+            den = fric_post[p, f] + tiny
+            for c in range(n_c):
+                for mo in range(4):
+                    modes_post[p, f, c, mo] = (
+                        modes_post[p, f, c, mo] + tiny * marg_post[p, c, mo]
+                    ) / den
+
+
+if AVAILABLE:
+    import numba
+
+    _row_mw = numba.njit(cache=True, nogil=True)(_row_mw)
+    _entry_gap = numba.njit(cache=True, nogil=True)(_entry_gap)
+    _entry_kernel = numba.njit(cache=True, nogil=True)(_entry_kernel)
+    _wrap = numba.njit(cache=True, nogil=True)(_wrap)
+    _chol_lower = numba.njit(cache=True, nogil=True)(_chol_lower)
+    _lse_row = numba.njit(cache=True, nogil=True)(_lse_row)
+    _propose_kernel = numba.njit(cache=True, nogil=True)(_propose_kernel)
+
+
+def entry_dynamics(
+    starts: IntArray,
+    md: IntArray,
+    *,
+    jn: FloatArray,
+    jt: FloatArray,
+    phi: FloatArray,
+    vn_env: FloatArray,
+    vt_env: FloatArray,
+    v_free: FloatArray,
+    inv_mass: FloatArray,
+    mass: FloatArray | None,
+    mu: FloatArray,
+    row_b: IntArray | None,
+    group: IntArray,
+    prev_in: FloatArray | None,
+    log_pred: FloatArray,
+    fric: FloatArray,
+    sig2: FloatArray,
+    params: tuple[float, ...],
+    sensitivity: bool,
+) -> tuple[dict[str, Any], int]:
+    """Phase 4 of the step for the N live entries (rows starts[p] .. starts[p + 1] of row p,
+    modes md (N, C)) x F friction hypotheses.
+
+    Per row (R rows): jn, jt (R, C, nv) contact Jacobians; phi, vn_env, vt_env (R, C) gaps
+    (m) and obstacle velocities (m/s); v_free (R, Fv, nv), Fv in (1, F), the velocity
+    without contact impulses; inv_mass (nv,) the diagonal of M^-1 or mass (R, Fm, nv, nv) an
+    effective mass; mu (B, C) the coefficient of each contact per joint friction hypothesis
+    and row_b (R,) each row's hypothesis (friction bank; None: f is the hypothesis); group
+    (C,) obstacle group index 0..n-1 of each contact; prev_in (R, C) P(in contact) at the
+    previous step (None = 1); log_pred (R, F, C, 4) log predicted mode marginals; fric (R, F) the
+    friction belief; sig2 (nv,) velocity process-noise variances. params = (dt, eps_rel,
+    impulse scale, velocity scale, impulse floor, gap closure, gap tolerance or -1,
+    constrained noise).
+
+    Returns (v_next (N, F, nv), ln, lt (N, F, C), score (N, F), response (N, F, nv, nv),
+    impulse_response (N, F, 2, C, nv) or None, cov (N, F, nv, nv), log_alpha (N, F)) and
+    the number of singular systems met.
+    """
+    n_e, n_c = md.shape
+    nv = jn.shape[2]
+    n_r = starts.shape[0] - 1
+    n_f = fric.shape[1]
+    out: dict[str, Any] = {
+        "v_next": np.empty((n_e, n_f, nv)),
+        "ln": np.empty((n_e, n_f, n_c)),
+        "lt": np.empty((n_e, n_f, n_c)),
+        "score": np.empty((n_e, n_f)),
+        "response": np.empty((n_e, n_f, nv, nv)),
+        "impulse_response": np.empty((n_e if sensitivity else 0, n_f, 2, n_c, nv)),
+        "cov": np.empty((n_e, n_f, nv, nv)),
+        "log_alpha": np.empty((n_e, n_f)),
+    }
+    n_groups = int(group.max()) + 1 if group.size else 0
+    c = np.ascontiguousarray
+    n_bad = _entry_kernel(
+        c(starts, dtype=np.int64),
+        c(md, dtype=np.int64),
+        c(jn),
+        c(jt),
+        c(phi),
+        c(vn_env),
+        c(vt_env),
+        c(v_free),
+        c(inv_mass, dtype=np.float64),
+        np.zeros((n_r, 1, nv, nv)) if mass is None else c(mass),
+        mass is not None,
+        c(mu),
+        np.full(n_r, -1, dtype=np.int64) if row_b is None else c(row_b, dtype=np.int64),
+        c(group, dtype=np.int64),
+        n_groups,
+        np.asarray(params, dtype=np.float64),
+        np.zeros((0, n_c)) if prev_in is None else c(prev_in),
+        prev_in is not None,
+        bool(sensitivity),
+        c(np.broadcast_to(log_pred, (n_r, n_f, n_c, 4))),
+        c(fric),
+        c(sig2, dtype=np.float64),
+        out["v_next"],
+        out["ln"],
+        out["lt"],
+        out["score"],
+        out["response"],
+        out["impulse_response"],
+        out["cov"],
+        out["log_alpha"],
+    )
+    if not sensitivity:
+        out["impulse_response"] = None
+    return out, int(n_bad)
+
+
+def propose_rows(
+    starts: IntArray,
+    md: IntArray,
+    *,
+    q: FloatArray,
+    v_h: FloatArray,
+    cov: FloatArray,
+    log_alpha: FloatArray,
+    observation: tuple[FloatArray, BoolArray, FloatArray] | None,
+    q_gain: FloatArray,
+    q_std: FloatArray,
+    dt: float,
+    gumbel: FloatArray,
+    z_v: FloatArray,
+    z_q: FloatArray,
+    pair_mask: BoolArray,
+) -> dict[str, FloatArray]:
+    """Phases 5-6 of the step per row (R rows, entries starts[p] .. starts[p + 1], modes md
+    (N, C)): q (R, nq) poses; v_h (N, F, nv), cov (N, F, nv, nv), log_alpha (N, F) of
+    `entry_dynamics`; observation = (value (nq,), angular (nq,), s_diag (nq, nq)) of a pose
+    reading of every dim in order, or None; q_gain, q_std (nq,) the position-noise posterior
+    gain and std; gumbel (R, K F) standard Gumbel draws of the padded (K, F) layout (K >=
+    the largest entry count of a row); z_v, z_q (R, nq) standard normals of v' and of the
+    position noise; pair_mask (pairs, C) the contacts of each friction pair.
+
+    Returns incr (R,) the evidence, v_new and q_new (R, nq) the sampled state, fric_post
+    (R, F), modes_post (R, F, C, 4), marg_post (R, C, 4) and pair_in (R, pairs).
+    """
+    n_r = starts.shape[0] - 1
+    n_c = md.shape[1]
+    n_f = log_alpha.shape[1]
+    nq = q.shape[1]
+    out = {
+        "incr": np.empty(n_r),
+        "v_new": np.empty((n_r, nq)),
+        "q_new": np.empty((n_r, nq)),
+        "fric_post": np.empty((n_r, n_f)),
+        "modes_post": np.empty((n_r, n_f, n_c, 4)),
+        "marg_post": np.empty((n_r, n_c, 4)),
+        "pair_in": np.empty((n_r, pair_mask.shape[0])),
+    }
+    value, angular, s_diag = (
+        (np.zeros(nq), np.zeros(nq, dtype=np.bool_), np.zeros((nq, nq)))
+        if observation is None
+        else observation
+    )
+    c = np.ascontiguousarray
+    _propose_kernel(
+        c(starts, dtype=np.int64),
+        c(md, dtype=np.int64),
+        c(q),
+        c(v_h),
+        c(cov),
+        c(log_alpha),
+        observation is not None,
+        c(value, dtype=np.float64),
+        c(angular, dtype=np.bool_),
+        c(s_diag, dtype=np.float64),
+        c(q_gain, dtype=np.float64),
+        c(q_std, dtype=np.float64),
+        float(dt),
+        c(gumbel),
+        c(z_v),
+        c(z_q),
+        c(pair_mask, dtype=np.bool_),
+        out["incr"],
+        out["v_new"],
+        out["q_new"],
+        out["fric_post"],
+        out["modes_post"],
+        out["marg_post"],
+        out["pair_in"],
+    )
+    return out
