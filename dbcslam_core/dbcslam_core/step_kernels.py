@@ -82,11 +82,11 @@ def _row_mw(  # noqa: PLR0917 - numba helper: positional arrays
     return n_bad
 
 
-def _entry_gap(
-    phi: float, in_contact: bool, closure: float, tolerance: float, prev: float
+def _entry_gap(  # noqa: PLR0917 - numba helper
+    phi: float, in_contact: bool, closure: float, tolerance: float, has_prev: bool, prev: float
 ) -> float:
-    """`transition.contact_gap` of one contact (tolerance < 0: None; prev < 0: no previous
-    contact probability)."""
+    """`transition.contact_gap` of one contact (tolerance < 0: None; has_prev False: no
+    previous contact probability)."""
     if tolerance < 0.0:
         if closure >= 1.0:
             return phi
@@ -94,7 +94,7 @@ def _entry_gap(
             return closure * phi
         return phi
     band = tolerance
-    if prev >= 0.0:
+    if has_prev:
         band = tolerance * min(max(prev, 0.0), 1.0)
     residual = min(max(phi, -tolerance), band)
     if in_contact:
@@ -194,8 +194,8 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     n_stick += 1
                 if mc >= _POS:
                     slides = True
-                prev = prev_in[p, c] if has_prev else -1.0
-                ph[c] = _entry_gap(phi_row[p, c], mc != _SEP, closure, tolerance, prev)
+                prev = prev_in[p, c] if has_prev else 1.0
+                ph[c] = _entry_gap(phi_row[p, c], mc != _SEP, closure, tolerance, has_prev, prev)
             u_row = row_b[p]
             for f in range(n_f):
                 fv = f if vf.shape[1] > 1 else 0
