@@ -68,7 +68,7 @@ def _steps(
     for k in range(1, traj.n_steps):
         o = traj.obs[k]
         obs = None if skip_every and k % skip_every == 0 else PoseObservation(*map(float, o))
-        fo = None if force is None else ForceObservation(*map(float, force[k]))
+        fo = None if force is None else ForceObservation(float(force[k, 0]), float(force[k, 1]))
         yield obs, FilterInput(tuple(traj.u[k - 1]), tuple(traj.env_obs[k])), fo
 
 
