@@ -906,13 +906,10 @@ def _enumerate_compiled(
 ) -> Hypotheses:
     """`enumerate_hypotheses` through `kernels.enumerate_tuples` (same rules)."""
     n_p, n_c, _ = mg.shape
-    order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4), as the numpy path
-    sp = -np.sort(-mg, axis=-1)
-    live = sp >= threshold
-    live[..., 0] = True
-    with np.errstate(divide="ignore"):
-        lsp = np.where(live, np.log(sp), -np.inf)
-    radix_t = _radix(sum_last(live).max(axis=0).tolist(), max_tuples)
+    # (P, C, 4) modes by descending probability (stable, as the numpy path), their log
+    # probabilities (-inf where not live) and the live count per (particle, contact)
+    order, lsp, n_live = kernels.prepare_tuples(mg, threshold)
+    radix_t = _radix(n_live.max(axis=0).tolist(), max_tuples)
     n_t = math.prod(radix_t)
     pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
     if layout is None:
@@ -923,6 +920,7 @@ def _enumerate_compiled(
     modes, logp, valid = kernels.enumerate_tuples(
         order,
         lsp,
+        n_live=n_live,
         threshold=threshold,
         ranks=_mixed_radix(radix_t),
         n_keep=min(max_hypotheses, pre_k),

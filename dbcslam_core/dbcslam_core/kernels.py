@@ -29,7 +29,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AVAILABLE", "enumerate_tuples", "gaussian_update", "reduced_dynamics"]
+__all__ = [
+    "AVAILABLE",
+    "enumerate_tuples",
+    "gaussian_update",
+    "prepare_tuples",
+    "reduced_dynamics",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -545,13 +551,17 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     forbidden: IntArray,
     same: IntArray,
     both_tolerance: float,
+    n_live: IntArray,
     out_modes: IntArray,
     out_logp: FloatArray,
     out_valid: npt.NDArray[np.bool_],
 ) -> int:
     """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
     n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
-    tuples are screened first, as there); returns the largest valid count."""
+    tuples are screened first, as there); returns the largest valid count. Only the tuples
+    whose digits are live (digit c < n_live[p, c], (P, C), at most the radix) are visited, in
+    tuple order: the others have log prior -inf and cannot be valid (the slots after the
+    visited tuples stay empty: modes 0, log prior -inf, not valid)."""
     n_p, n_c, _ = lsp.shape
     n_t = ranks.shape[0]
     truncated = pre_k < n_t
@@ -562,13 +572,32 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     cand = np.empty(n_c, dtype=np.int64)
     e = np.empty(n_keep)
     k_used = 1
+    stride = np.ones(n_c, dtype=np.int64)  # C-order strides of the digit tuples
+    for c in range(n_c - 2, -1, -1):
+        stride[c] = stride[c + 1] * (ranks[n_t - 1, c + 1] + 1)
+    digit = np.zeros(n_c, dtype=np.int64)
     for p in range(n_p):
         n_pre = 0
         n_top = 0
-        for t in range(n_t):
-            lp = lsp[p, 0, ranks[t, 0]]
+        # only the tuples of live digits (the others have log prior -inf), in tuple order
+        for c in range(n_c):
+            digit[c] = 0
+        more = True
+        while more:
+            t = 0
+            for c in range(n_c):
+                t += digit[c] * stride[c]
+            lp = lsp[p, 0, digit[0]]
             for c in range(1, n_c):
-                lp += lsp[p, c, ranks[t, c]]
+                lp += lsp[p, c, digit[c]]
+            c = n_c - 1  # next tuple: odometer over digit[c] < n_live[p, c]
+            while c >= 0:
+                digit[c] += 1
+                if digit[c] < n_live[p, c]:
+                    break
+                digit[c] = 0
+                c -= 1
+            more = c >= 0
             if truncated:
                 n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
                 continue
@@ -610,16 +639,60 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     return k_used
 
 
+def _prepare_kernel(
+    mg: FloatArray, lg: FloatArray, threshold: float, order: IntArray, lsp: FloatArray
+) -> IntArray:
+    """Per (particle, contact): the modes by descending probability (a stable sort, as
+    np.argsort(-mg, kind="stable")) into order, their log probabilities lg (= log mg) in
+    that order into lsp (-inf where not live: below threshold, except the most probable);
+    returns the number of live modes (P, C)."""
+    n_p, n_c, n_m = mg.shape
+    n_live = np.empty((n_p, n_c), dtype=np.int64)
+    for p in range(n_p):
+        for c in range(n_c):
+            for i in range(n_m):  # rank of mode i: larger ones, then equal ones before it
+                v = mg[p, c, i]
+                rank = 0
+                for j in range(n_m):
+                    w = mg[p, c, j]
+                    rank += (w > v) or (w == v and j < i)
+                order[p, c, rank] = i
+            cnt = 0
+            for i in range(n_m):
+                k = order[p, c, i]
+                live = i == 0 or mg[p, c, k] >= threshold
+                lsp[p, c, i] = lg[p, c, k] if live else -np.inf
+                if live:
+                    cnt += 1
+            n_live[p, c] = cnt
+    return n_live
+
+
 if AVAILABLE:
+    _prepare_kernel = numba.njit(cache=True, nogil=True)(_prepare_kernel)
     _insert_desc = numba.njit(cache=True, nogil=True)(_insert_desc)
     _feasible = numba.njit(cache=True, nogil=True)(_feasible)
     _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
+
+
+def prepare_tuples(mg: FloatArray, threshold: float) -> tuple[IntArray, FloatArray, IntArray]:
+    """Modes per (particle, contact) of the marginals mg (P, C, 4) by descending probability
+    (stable): order (P, C, 4), their log probabilities lsp (P, C, 4) (-inf where not live:
+    below threshold, except the most probable) and the live count (P, C)."""
+    mga = np.ascontiguousarray(mg, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        lg = np.log(mga)
+    order = np.empty(mga.shape, dtype=np.int64)
+    lsp = np.empty(mga.shape)
+    n_live = _prepare_kernel(mga, lg, float(threshold), order, lsp)
+    return order, lsp, n_live
 
 
 def enumerate_tuples(
     order: IntArray,
     lsp: FloatArray,
     *,
+    n_live: IntArray,
     threshold: float,
     ranks: IntArray,
     n_keep: int,
@@ -630,7 +703,7 @@ def enumerate_tuples(
 ) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
     """Compiled `contact_modes.enumerate_hypotheses` core: order (P, C, 4) the modes of each
     contact by descending probability and lsp (P, C, 4) their log probabilities (-inf where
-    not live), in that order; ranks
+    not live), in that order; n_live (P, C) the live modes of each contact; ranks
     (T, C) the mixed-radix digit tuples, n_keep = min(max_hypotheses, pre_k) columns, phi
     (P, C) gaps or None, rules = (crowded (G, L) padded with -1, forbidden (F, 2), same
     feature (S, 2)). Returns modes (P, K, C), log prior (P, K), valid (P, K), K the largest
@@ -654,6 +727,7 @@ def enumerate_tuples(
         rules[1],
         rules[2],
         float(both_tolerance),
+        np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
         out_modes,
         out_logp,
         out_valid,

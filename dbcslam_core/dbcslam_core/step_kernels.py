@@ -177,11 +177,32 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
     an = np.empty(n_c)
     at = np.empty(n_c)
     ph = np.empty(n_c)
+    phd = np.empty(n_c)
+    n_fv = vf.shape[1]
+    n_fm = mw.shape[0]
+    base_n = np.empty((n_fv, n_c))  # Jn v_free - vn_env per contact (the row's)
+    base_t = np.empty((n_fv, n_c))
+    dg = np.empty((n_fm, n_c))  # Delassus diagonal (normal + tangent) per contact
     n_bad = 0
     for p in range(n_r):
         if starts[p + 1] == starts[p]:
             continue
         n_bad += _row_mw(p, jn, jt, minv, mass, has_mass, mw, lu, rhs_m)
+        for fv in range(n_fv):
+            for c in range(n_c):
+                sn = 0.0
+                st = 0.0
+                for i in range(nv):
+                    sn += jn[p, c, i] * vf[p, fv, i]
+                    st += jt[p, c, i] * vf[p, fv, i]
+                base_n[fv, c] = sn - vne[p, c]
+                base_t[fv, c] = st - vte[p, c]
+        for fm in range(n_fm):
+            for c in range(n_c):
+                d = 0.0
+                for i in range(nv):
+                    d += jn[p, c, i] * mw[fm, c, i] + jt[p, c, i] * mw[fm, n_c + c, i]
+                dg[fm, c] = d
         for n in range(starts[p], starts[p + 1]):
             n_act = 0
             n_stick = 0
@@ -196,6 +217,7 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     slides = True
                 prev = prev_in[p, c] if has_prev else 1.0
                 ph[c] = _entry_gap(phi_row[p, c], mc != _SEP, closure, tolerance, has_prev, prev)
+                phd[c] = ph[c] / dt
             u_row = row_b[p]
             for f in range(n_f):
                 fv = f if vf.shape[1] > 1 else 0
@@ -216,13 +238,8 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                                     irs[n, f, k, c, i] = irs[n, 0, k, c, i]
                 else:
                     for c in range(n_c):
-                        sn = 0.0
-                        st = 0.0
-                        for i in range(nv):
-                            sn += jn[p, c, i] * vf[p, fv, i]
-                            st += jt[p, c, i] * vf[p, fv, i]
-                        an[c] = sn - vne[p, c] + ph[c] / dt
-                        at[c] = st - vte[p, c]
+                        an[c] = base_n[fv, c] + phd[c]
+                        at[c] = base_t[fv, c]
                     for i in range(nv):
                         v_next[n, f, i] = vf[p, fv, i]
                         for j in range(nv):
@@ -249,11 +266,7 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                                 take = True
                                 extra -= 1
                             if take:
-                                for i in range(nv):
-                                    dsum += (
-                                        jn[p, c, i] * mw[fm, c, i]
-                                        + jt[p, c, i] * mw[fm, n_c + c, i]
-                                    )
+                                dsum += dg[fm, c]
                         eps = eps_rel * max(dsum / (2 * n_max), 1e-300)
                         r = 0
                         for c in range(n_c):
@@ -318,7 +331,7 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     for i in range(nv):
                         sn += jn[p, c, i] * v_next[n, f, i]
                         st += jt[p, c, i] * v_next[n, f, i]
-                    gr = sn - vne[p, c] + ph[c] / dt
+                    gr = (sn - vne[p, c]) + phd[c]
                     vtc = st - vte[p, c]
                     mc = md[n, c]
                     v_neg = 0.0
@@ -628,13 +641,13 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
 if AVAILABLE:
     import numba
 
-    _row_mw = numba.njit(cache=True, nogil=True)(_row_mw)
-    _entry_gap = numba.njit(cache=True, nogil=True)(_entry_gap)
-    _entry_kernel = numba.njit(cache=True, nogil=True)(_entry_kernel)
-    _wrap = numba.njit(cache=True, nogil=True)(_wrap)
-    _chol_lower = numba.njit(cache=True, nogil=True)(_chol_lower)
-    _lse_row = numba.njit(cache=True, nogil=True)(_lse_row)
-    _propose_kernel = numba.njit(cache=True, nogil=True)(_propose_kernel)
+    _row_mw = numba.njit(cache=True, nogil=True, error_model="numpy")(_row_mw)
+    _entry_gap = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_gap)
+    _entry_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_kernel)
+    _wrap = numba.njit(cache=True, nogil=True, error_model="numpy")(_wrap)
+    _chol_lower = numba.njit(cache=True, nogil=True, error_model="numpy")(_chol_lower)
+    _lse_row = numba.njit(cache=True, nogil=True, error_model="numpy")(_lse_row)
+    _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
 
 
 def entry_dynamics(
