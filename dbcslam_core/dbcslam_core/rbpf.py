@@ -486,6 +486,7 @@ class DbcSlamFilter:
             impulse_floor=1e-3 * float(self.model.mass_diag[0]),
         )
         self._resampler = make_resampler(cfg.resampler)
+        self._work: dict[str, FloatArray] = {}  # reusable per-step buffers (step_kernels)
         prior = scenario.friction.prior
         self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
         self._initialised = False
@@ -1013,6 +1014,7 @@ class DbcSlamFilter:
                 cfg.constrained_noise,
             ),
             sensitivity=sensitivity,
+            work=self._work,
         )
         if n_bad or not np.isfinite(out["v_next"]).all():
             msg = (

@@ -650,6 +650,21 @@ if AVAILABLE:
     _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
 
 
+def _buffer(work: dict[str, FloatArray] | None, name: str, shape: tuple[int, ...]) -> FloatArray:
+    """An uninitialised float array of `shape`: a view of the reusable buffer `name` of work
+    (grown when too small), or a new array without work. Reusing the large per-step
+    temporaries avoids the page faults of fresh allocations (glibc maps arrays above
+    128 kB anew each time)."""
+    if work is None:
+        return np.empty(shape)
+    size = math.prod(shape)
+    buf = work.get(name)
+    if buf is None or buf.size < size:
+        buf = np.empty(max(size, 1024) + size // 4)
+        work[name] = buf
+    return buf[:size].reshape(shape)
+
+
 def entry_dynamics(
     starts: IntArray,
     md: IntArray,
@@ -671,6 +686,7 @@ def entry_dynamics(
     sig2: FloatArray,
     params: tuple[float, ...],
     sensitivity: bool,
+    work: dict[str, FloatArray] | None = None,
 ) -> tuple[dict[str, Any], int]:
     """Phase 4 of the step for the N live entries (rows starts[p] .. starts[p + 1] of row p,
     modes md (N, C)) x F friction hypotheses.
@@ -688,22 +704,25 @@ def entry_dynamics(
 
     Returns (v_next (N, F, nv), ln, lt (N, F, C), score (N, F), response (N, F, nv, nv),
     impulse_response (N, F, 2, C, nv) or None, cov (N, F, nv, nv), log_alpha (N, F)) and
-    the number of singular systems met.
+    the number of singular systems met. work: reusable buffers (a dict kept by the
+    caller): the outputs are then views of them, valid until the next call with the same
+    work.
     """
     n_e, n_c = md.shape
     nv = jn.shape[2]
     n_r = starts.shape[0] - 1
     n_f = fric.shape[1]
-    out: dict[str, Any] = {
-        "v_next": np.empty((n_e, n_f, nv)),
-        "ln": np.empty((n_e, n_f, n_c)),
-        "lt": np.empty((n_e, n_f, n_c)),
-        "score": np.empty((n_e, n_f)),
-        "response": np.empty((n_e, n_f, nv, nv)),
-        "impulse_response": np.empty((n_e if sensitivity else 0, n_f, 2, n_c, nv)),
-        "cov": np.empty((n_e, n_f, nv, nv)),
-        "log_alpha": np.empty((n_e, n_f)),
+    shapes = {
+        "v_next": (n_e, n_f, nv),
+        "ln": (n_e, n_f, n_c),
+        "lt": (n_e, n_f, n_c),
+        "score": (n_e, n_f),
+        "response": (n_e, n_f, nv, nv),
+        "impulse_response": (n_e if sensitivity else 0, n_f, 2, n_c, nv),
+        "cov": (n_e, n_f, nv, nv),
+        "log_alpha": (n_e, n_f),
     }
+    out: dict[str, Any] = {name: _buffer(work, name, shape) for name, shape in shapes.items()}
     n_groups = int(group.max()) + 1 if group.size else 0
     c = np.ascontiguousarray
     n_bad = _entry_kernel(
