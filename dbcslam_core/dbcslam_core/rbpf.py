@@ -1034,8 +1034,8 @@ class DbcSlamFilter:
             )
         # the random numbers of the numpy path, in its order: Gumbel uniforms over the
         # padded (K, F) layout, then the normals of v' and of the position noise
-        uniforms = self._shared_draws(self.rng.random, (n_r, hyp.modes.shape[1] * self.n_fb))
-        gumbel = -np.log(-np.log(uniforms))
+        # (a bank's copies share their particle's draws: `_shared_draws` without the repeat)
+        uniforms = self.rng.random((n_r // self._n_sub, hyp.modes.shape[1] * self.n_fb))
         normals = self.rng.standard_normal if self._n_sub == 1 else self._shared_normals
         z_v = normals((n_r, self.nq))
         z_q = normals((n_r, self.nq))
@@ -1052,7 +1052,8 @@ class DbcSlamFilter:
             q_gain=q_gain,
             q_std=q_std,
             dt=self.dt,
-            gumbel=gumbel,
+            uniforms=uniforms,
+            copies=self._n_sub,
             z_v=z_v,
             z_q=z_q,
             pair_mask=self._pair_mask,

@@ -14,7 +14,7 @@ same order per element (values equal to round-off, `tests/core/test_step_kernels
   and the velocity noise covariance R diag(sig2) R^T + constrained_noise diag(sig2).
 * `propose_rows`: per row p: the Kalman-form proposal of every entry x friction
   (`kernels._gaussian_kernel`), the evidence lse(log alpha + log p(o)), one (entry,
-  friction) drawn by Gumbel-max (Gumbel draws from the caller), v' and the position noise
+  friction) drawn by Gumbel-max (uniforms from the caller), v' and the position noise
   from its Gaussian (standard normals drawn by the caller), then the discrete posterior given
   v': friction (R, F), per-contact mode marginals given f (R, F, C, 4) and overall (R, C, 4),
   and P(pair in contact) (R, pairs).
@@ -325,14 +325,19 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     lt_g[k] = 0.0
                     cap_g[k] = 0.0
                     mag_g[k] = 0.0
+                fv = f if vf.shape[1] > 1 else 0
                 for c in range(n_c):
-                    sn = 0.0
-                    st = 0.0
-                    for i in range(nv):
-                        sn += jn[p, c, i] * v_next[n, f, i]
-                        st += jt[p, c, i] * v_next[n, f, i]
-                    gr = (sn - vne[p, c]) + phd[c]
-                    vtc = st - vte[p, c]
+                    if n_act == 0:  # v' = v_free: the row's free rates
+                        gr = base_n[fv, c] + phd[c]
+                        vtc = base_t[fv, c]
+                    else:
+                        sn = 0.0
+                        st = 0.0
+                        for i in range(nv):
+                            sn += jn[p, c, i] * v_next[n, f, i]
+                            st += jt[p, c, i] * v_next[n, f, i]
+                        gr = (sn - vne[p, c]) + phd[c]
+                        vtc = st - vte[p, c]
                     mc = md[n, c]
                     v_neg = 0.0
                     if mc == _SEP:
@@ -441,7 +446,8 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     q_gain: FloatArray,
     q_std: FloatArray,
     dt: float,
-    gumbel: FloatArray,
+    uniforms: FloatArray,
+    copies: int,
     z_v: FloatArray,
     z_q: FloatArray,
     pair_mask: BoolArray,
@@ -454,7 +460,8 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     pair_in: FloatArray,
 ) -> None:
     """Per row p: proposal of each (entry, f), evidence, the Gumbel-max draw over the
-    padded (K, F) layout (gumbel (R, K F)), the sampled v', q' and the discrete
+    padded (K, F) layout (uniforms (R / copies, K F), shared by the copies of a particle),
+    the sampled v', q' and the discrete
     posterior given v' (see the module docstring)."""
     n_r = starts.shape[0] - 1
     n_c = md.shape[1]
@@ -540,7 +547,7 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         pick = 0
         for m in range(n_m):
             if np.isfinite(lj[m]):
-                g = lj[m] + gumbel[p, m]
+                g = lj[m] - math.log(-math.log(uniforms[p // copies, m]))
                 if g > best:
                     best = g
                     pick = m
@@ -774,7 +781,8 @@ def propose_rows(
     q_gain: FloatArray,
     q_std: FloatArray,
     dt: float,
-    gumbel: FloatArray,
+    uniforms: FloatArray,
+    copies: int,
     z_v: FloatArray,
     z_q: FloatArray,
     pair_mask: BoolArray,
@@ -783,8 +791,9 @@ def propose_rows(
     (N, C)): q (R, nq) poses; v_h (N, F, nv), cov (N, F, nv, nv), log_alpha (N, F) of
     `entry_dynamics`; observation = (value (nq,), angular (nq,), s_diag (nq, nq)) of a pose
     reading of every dim in order, or None; q_gain, q_std (nq,) the position-noise posterior
-    gain and std; gumbel (R, K F) standard Gumbel draws of the padded (K, F) layout (K >=
-    the largest entry count of a row); z_v, z_q (R, nq) standard normals of v' and of the
+    gain and std; uniforms (R / copies, K F) the uniforms of the Gumbel draws of the padded
+    (K, F) layout (K >= the largest entry count of a row), row p using row p // copies (the
+    copies of a friction bank share them); z_v, z_q (R, nq) standard normals of v' and of the
     position noise; pair_mask (pairs, C) the contacts of each friction pair.
 
     Returns incr (R,) the evidence, v_new and q_new (R, nq) the sampled state, fric_post
@@ -823,7 +832,8 @@ def propose_rows(
         c(q_gain, dtype=np.float64),
         c(q_std, dtype=np.float64),
         float(dt),
-        c(gumbel),
+        c(uniforms),
+        int(copies),
         c(z_v),
         c(z_q),
         c(pair_mask, dtype=np.bool_),
