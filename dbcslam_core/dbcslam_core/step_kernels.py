@@ -176,8 +176,8 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
     mag_g = np.zeros(max(n_groups, 1))
     an = np.empty(n_c)
     at = np.empty(n_c)
-    ph = np.empty(n_c)
     phd = np.empty(n_c)
+    phd_row = np.empty(n_c)
     n_fv = vf.shape[1]
     n_fm = mw.shape[0]
     base_n = np.empty((n_fv, n_c))  # Jn v_free - vn_env per contact (the row's)
@@ -197,6 +197,8 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     st += jt[p, c, i] * vf[p, fv, i]
                 base_n[fv, c] = sn - vne[p, c]
                 base_t[fv, c] = st - vte[p, c]
+        for c in range(n_c):
+            phd_row[c] = phi_row[p, c] / dt
         for fm in range(n_fm):
             for c in range(n_c):
                 d = 0.0
@@ -215,9 +217,13 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     n_stick += 1
                 if mc >= _POS:
                     slides = True
-                prev = prev_in[p, c] if has_prev else 1.0
-                ph[c] = _entry_gap(phi_row[p, c], mc != _SEP, closure, tolerance, has_prev, prev)
-                phd[c] = ph[c] / dt
+                if mc == _SEP:  # (the gap of a separated contact is not changed)
+                    phd[c] = phd_row[c]
+                else:
+                    prev = prev_in[p, c] if has_prev else 1.0
+                    phd[c] = (
+                        _entry_gap(phi_row[p, c], True, closure, tolerance, has_prev, prev) / dt
+                    )
             u_row = row_b[p]
             for f in range(n_f):
                 fv = f if vf.shape[1] > 1 else 0
@@ -327,18 +333,22 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                     mag_g[k] = 0.0
                 fv = f if vf.shape[1] > 1 else 0
                 for c in range(n_c):
+                    mc = md[n, c]
+                    # the gap rate of a separated contact and the slip of a sliding one
+                    gr = 0.0
+                    vtc = 0.0
                     if n_act == 0:  # v' = v_free: the row's free rates
                         gr = base_n[fv, c] + phd[c]
-                        vtc = base_t[fv, c]
-                    else:
+                    elif mc == _SEP:
                         sn = 0.0
-                        st = 0.0
                         for i in range(nv):
                             sn += jn[p, c, i] * v_next[n, f, i]
-                            st += jt[p, c, i] * v_next[n, f, i]
                         gr = (sn - vne[p, c]) + phd[c]
+                    elif mc >= _POS:
+                        st = 0.0
+                        for i in range(nv):
+                            st += jt[p, c, i] * v_next[n, f, i]
                         vtc = st - vte[p, c]
-                    mc = md[n, c]
                     v_neg = 0.0
                     if mc == _SEP:
                         v_neg = -gr
@@ -417,6 +427,20 @@ def _chol_lower(a: FloatArray, low: FloatArray, n: int) -> None:
                     s = s + low[i, k] * low[j, k]
                 num = num - s
             low[i, j] = num / ljj
+
+
+def _log_diag(low: FloatArray, n: int) -> float:
+    """sum_i log low[i, i] (log det of the factor): one log of the product when that is a
+    normal number (the usual case), else the sum of logs."""
+    prod = 1.0
+    for i in range(n):
+        prod *= low[i, i]
+    if 1e-300 < prod < 1e300:
+        return math.log(prod)
+    s = 0.0
+    for i in range(n):
+        s += math.log(low[i, i])
+    return s
 
 
 def _lse_row(vals: FloatArray, n: int) -> float:
@@ -516,20 +540,19 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                         for k in range(j):
                             num -= low[i, k] * low[j, k]
                         low[i, j] = num / ljj
-                logdet = 0.0
                 maha = 0.0
                 for i in range(nv):
                     z[i, 0] = y_all[m, i]
                     for v in range(nv):
                         z[i, 1 + v] = cov[n, f, v, i] * dt
+                    inv = 1.0 / low[i, i]
                     for col in range(nv + 1):
                         s = 0.0
                         for k in range(i):
                             s += low[i, k] * z[k, col]
-                        z[i, col] = (z[i, col] - s) / low[i, i]
+                        z[i, col] = (z[i, col] - s) * inv
                     maha += z[i, 0] * z[i, 0]
-                    logdet += math.log(low[i, i])
-                log_pred = -0.5 * (maha + 2.0 * logdet + nv * _LOG_2PI)
+                log_pred = -0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI)
                 lj[m] = log_alpha[n, f] + log_pred
                 for aa in range(nv):
                     cx = 0.0
@@ -593,7 +616,6 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                         a[i, j] = cov[n, f, i, j]
                 _chol_lower(a, low, nv)
                 maha = 0.0
-                logdet = 0.0
                 for i in range(nv):
                     acc = v_new[p, i] - v_h[n, f, i]
                     if i:
@@ -603,8 +625,7 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                         acc = acc - s
                     corr[i] = acc / low[i, i]
                     maha += corr[i] * corr[i]
-                    logdet += math.log(low[i, i])
-                dens = -0.5 * (maha + 2.0 * logdet + nv * _LOG_2PI)
+                dens = -0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI)
                 lpost[m] = log_alpha[n, f] + dens
         norm = _lse_row(lpost, n_m)
         for f in range(n_f):
@@ -653,6 +674,7 @@ if AVAILABLE:
     _entry_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_kernel)
     _wrap = numba.njit(cache=True, nogil=True, error_model="numpy")(_wrap)
     _chol_lower = numba.njit(cache=True, nogil=True, error_model="numpy")(_chol_lower)
+    _log_diag = numba.njit(cache=True, nogil=True, error_model="numpy")(_log_diag)
     _lse_row = numba.njit(cache=True, nogil=True, error_model="numpy")(_lse_row)
     _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
 
