@@ -1469,8 +1469,21 @@ class DbcSlamFilter:
         history = self.particles.history
         if history.length == 0:
             return self.map.view()
-        obs = self._map_observations(history.entries(), w)
-        pending = [None if o is None else self.map.accumulate(*o) for o in obs]
+        pending: list[tuple[FloatArray, FloatArray] | None]
+        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+            fmap = self.map
+            pending = step_kernels.map_pending(
+                history.buf,
+                history.head,
+                history.length,
+                w,
+                pair_mask=self._pair_mask,
+                n_cand=np.asarray(self._n_cand, dtype=np.int64),
+                grid=(fmap.s_min, fmap.cell_size, fmap.n_cells),
+            )
+        else:
+            obs = self._map_observations(history.entries(), w)
+            pending = [None if o is None else self.map.accumulate(*o) for o in obs]
         return self.map.view(pending)
 
     def _estimate(

@@ -33,7 +33,7 @@ import numpy.typing as npt
 
 from dbcslam_core import kernels
 
-__all__ = ["AVAILABLE", "entry_dynamics", "propose_rows"]
+__all__ = ["AVAILABLE", "entry_dynamics", "map_pending", "propose_rows"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -666,8 +666,54 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                     ) / den
 
 
+def _map_pending_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    buf: FloatArray,
+    head: int,
+    length: int,
+    w: FloatArray,
+    pair_mask: BoolArray,
+    n_cand: IntArray,
+    k_max: int,
+    grid: FloatArray,
+    sums: FloatArray,
+    wsum: FloatArray,
+    count: IntArray,
+) -> None:
+    """Per pair: sums (pairs, cells, Kmax) of weight x friction marginals and wsum (pairs,
+    cells) of weight over the history entries l < length (ring slots (head + l) % cap of buf
+    (cap, P, W), rows [fric_pair (pairs Kmax) | s (C) | P(in contact) (C)]) and their
+    contacts c of the pair with weight = w[p] P(in contact) > 1e-9 and finite s; count
+    (pairs,) the observations. The order of accumulation is that of
+    `rbpf._map_observations` + `FrictionMap.accumulate` (entry, particle, contact)."""
+    cap, n_p, _ = buf.shape
+    n_pairs, n_c = pair_mask.shape
+    pk = n_pairs * k_max
+    s_min, cell_size, n_cells = grid[0], grid[1], int(grid[2])
+    for pr in range(n_pairs):
+        for e in range(length):
+            slot = (head + e) % cap
+            for p in range(n_p):
+                for c in range(n_c):
+                    if not pair_mask[pr, c]:
+                        continue
+                    weight = w[p] * buf[slot, p, pk + n_c + c]
+                    s = buf[slot, p, pk + c]
+                    if not (weight > 1e-9 and np.isfinite(s)):
+                        continue
+                    j = math.floor((s - s_min) / cell_size)
+                    cell = int(min(max(j, 0.0), n_cells - 1.0))
+                    for k in range(n_cand[pr]):
+                        sums[pr, cell, k] += weight * buf[slot, p, pr * k_max + k]
+                    wsum[pr, cell] += weight
+                    count[pr] += 1
+
+
 if AVAILABLE:
     import numba
+
+    _map_pending_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(
+        _map_pending_kernel
+    )
 
     _row_mw = numba.njit(cache=True, nogil=True, error_model="numpy")(_row_mw)
     _entry_gap = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_gap)
@@ -868,3 +914,44 @@ def propose_rows(
         out["pair_in"],
     )
     return out
+
+
+def map_pending(
+    buf: FloatArray,
+    head: int,
+    length: int,
+    w: FloatArray,
+    *,
+    pair_mask: BoolArray,
+    n_cand: IntArray,
+    grid: tuple[float, float, int],
+) -> list[tuple[FloatArray, FloatArray] | None]:
+    """The uncommitted friction-map history (a `particles.MapHistory` ring: buf (cap, P,
+    W), head, length) under particle weights w (P,) as pending per-cell sums for
+    `FrictionMap.view`: per pair None (no observation) or (sums (cells, K_pair), weights
+    (cells,)), the values of `FrictionMap.accumulate` of `rbpf._map_observations`; grid =
+    (s_min (m), cell size (m), number of cells); pair_mask (pairs, C) the contacts of each
+    pair; n_cand (pairs,) candidates per pair."""
+    n_pairs = pair_mask.shape[0]
+    k_max = int(buf.shape[2] - 2 * pair_mask.shape[1]) // n_pairs
+    n_cells = int(grid[2])
+    sums = np.zeros((n_pairs, n_cells, k_max))
+    wsum = np.zeros((n_pairs, n_cells))
+    count = np.zeros(n_pairs, dtype=np.int64)
+    _map_pending_kernel(
+        buf,
+        int(head),
+        int(length),
+        np.ascontiguousarray(w, dtype=np.float64),
+        np.ascontiguousarray(pair_mask, dtype=np.bool_),
+        np.ascontiguousarray(n_cand, dtype=np.int64),
+        k_max,
+        np.asarray(grid, dtype=np.float64),
+        sums,
+        wsum,
+        count,
+    )
+    return [
+        None if count[pr] == 0 else (sums[pr, :, : int(n_cand[pr])], wsum[pr])
+        for pr in range(n_pairs)
+    ]

@@ -167,3 +167,33 @@ def test_numpy_backend_runs_the_numpy_phases(
     reference, n_reference = run()
     assert n_compiled == 130 and n_reference == 0
     np.testing.assert_allclose(np.array(compiled), np.array(reference), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["edge", "gripper", "push"])
+def test_compiled_map_view_equals_numpy_map_view(
+    trajectories: dict[str, Trajectory], kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The friction-map snapshot with the uncommitted history (`map_pending`): the same
+    sums in the same order as `_map_observations` + `FrictionMap.accumulate`, bit for bit,
+    at every step (the ring buffer wraps after the lag)."""
+    traj = trajectories[kind]
+    filt = DbcSlamFilter(
+        traj.scenario, FilterConfig.preset(kind, particles=30), np.random.default_rng(2)
+    )
+    checked = 0
+    for k, (obs, inp, _) in enumerate(_steps(traj, None, 0)):
+        if k >= 90:
+            break
+        filt.step(obs, inp)
+        w = np.random.default_rng(k).dirichlet(np.ones(30))
+        compiled = filt._friction_map_view(w)
+        with monkeypatch.context() as m:
+            m.setattr(contact_modes, "DEFAULT_BACKEND", "numpy")
+            reference = filt._friction_map_view(w)
+        pairs = zip(
+            compiled.probs + compiled.weight, reference.probs + reference.weight, strict=True
+        )
+        for a, b in pairs:
+            np.testing.assert_array_equal(a, b)
+        checked += int(any(np.any(x > 0.0) for x in compiled.weight))
+    assert checked > 10  # contacts reached the map
