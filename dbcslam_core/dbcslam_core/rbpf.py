@@ -1052,6 +1052,7 @@ class DbcSlamFilter:
             q_gain=q_gain,
             q_std=q_std,
             dt=self.dt,
+            shared=free.v_free_b is None and free.m_eff is None,
             uniforms=uniforms,
             copies=self._n_sub,
             z_v=z_v,

@@ -470,6 +470,7 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     q_gain: FloatArray,
     q_std: FloatArray,
     dt: float,
+    shared: bool,
     uniforms: FloatArray,
     copies: int,
     z_v: FloatArray,
@@ -515,8 +516,23 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         # -- proposal of every (entry, f): log p(o), innovation, posterior of v' ----------
         for e in range(n_e):
             n = s0 + e
+            slides = False
+            for c in range(n_c):
+                if md[n, c] >= _POS:
+                    slides = True
+            same = shared and not slides  # v_h, cov do not depend on f
+            log_pred = 0.0
             for f in range(n_f):
                 m = e * n_f + f
+                if f > 0 and same and has_obs:  # the proposal of f = 0
+                    for i in range(nq):
+                        y_all[m, i] = y_all[m - f, i]
+                    for i in range(nv):
+                        vm_all[m, i] = vm_all[m - f, i]
+                        for j in range(nv):
+                            vc_all[m, i, j] = vc_all[m - f, i, j]
+                    lj[m] = log_alpha[n, f] + log_pred
+                    continue
                 if not has_obs:
                     lj[m] = log_alpha[n, f]
                     for i in range(nq):
@@ -606,11 +622,22 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         # -- discrete posterior given v' ----------------------------------------------------
         for e in range(n_e):
             n = s0 + e
+            slides = False
+            for c in range(n_c):
+                if md[n, c] >= _POS:
+                    slides = True
+            same = shared and not slides
+            f_dens = -1  # the f whose density was computed
+            dens = 0.0
             for f in range(n_f):
                 m = e * n_f + f
                 if not np.isfinite(log_alpha[n, f]):
                     lpost[m] = -np.inf
                     continue
+                if same and f_dens >= 0:  # v_h, cov of f_dens: the same density
+                    lpost[m] = log_alpha[n, f] + dens
+                    continue
+                f_dens = f
                 for i in range(nv):
                     for j in range(nv):
                         a[i, j] = cov[n, f, i, j]
@@ -849,6 +876,7 @@ def propose_rows(
     q_gain: FloatArray,
     q_std: FloatArray,
     dt: float,
+    shared: bool = False,
     uniforms: FloatArray,
     copies: int,
     z_v: FloatArray,
@@ -862,7 +890,9 @@ def propose_rows(
     gain and std; uniforms (R / copies, K F) the uniforms of the Gumbel draws of the padded
     (K, F) layout (K >= the largest entry count of a row), row p using row p // copies (the
     copies of a friction bank share them); z_v, z_q (R, nq) standard normals of v' and of the
-    position noise; pair_mask (pairs, C) the contacts of each friction pair.
+    position noise; pair_mask (pairs, C) the contacts of each friction pair; shared: v_h and
+    cov of an entry without sliding contacts are the same for every f (no per-friction
+    support terms), so its proposal and density are computed once.
 
     Returns incr (R,) the evidence, v_new and q_new (R, nq) the sampled state, fric_post
     (R, F), modes_post (R, F, C, 4), marg_post (R, C, 4) and pair_in (R, pairs).
@@ -900,6 +930,7 @@ def propose_rows(
         c(q_gain, dtype=np.float64),
         c(q_std, dtype=np.float64),
         float(dt),
+        bool(shared),
         c(uniforms),
         int(copies),
         c(z_v),
