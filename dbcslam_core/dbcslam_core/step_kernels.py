@@ -443,6 +443,72 @@ def _log_diag(low: FloatArray, n: int) -> float:
     return s
 
 
+def _gaussian_at(  # noqa: PLR0917 - numba helper: positional arrays
+    p: int,
+    n: int,
+    f: int,
+    q: FloatArray,
+    v_h: FloatArray,
+    cov: FloatArray,
+    obs_value: FloatArray,
+    angular: BoolArray,
+    s_diag: FloatArray,
+    dt: float,
+    low: FloatArray,
+    z: FloatArray,
+    y: FloatArray,
+    full: bool,
+    v_mean: FloatArray,
+    v_cov: FloatArray,
+) -> float:
+    """The Kalman-form proposal of (entry n, friction f) of row p (`kernels._gaussian_kernel`
+    with reciprocal pivots): innovation y, S = dt^2 cov + s_diag = L L^T, Z = L^-1 [y, dt
+    cov^T]; returns log N(y; 0, S); with full also v_mean = v_h + Z_c^T Z_y and v_cov = cov
+    - Z_c^T Z_c (the columns Z_c are solved only then; Z_y is the same either way)."""
+    nv = v_h.shape[2]
+    dt2 = dt * dt
+    for i in range(q.shape[1]):
+        r = obs_value[i] - (q[p, i] + dt * v_h[n, f, i])
+        y[i] = _wrap(r) if angular[i] else r
+    for j in range(nv):
+        d = dt2 * cov[n, f, j, j] + s_diag[j, j]
+        for k in range(j):
+            d -= low[j, k] * low[j, k]
+        ljj = math.sqrt(max(d, 1e-300))
+        low[j, j] = ljj
+        for i in range(j + 1, nv):
+            num = dt2 * cov[n, f, i, j] + s_diag[i, j]
+            for k in range(j):
+                num -= low[i, k] * low[j, k]
+            low[i, j] = num / ljj
+    n_col = nv + 1 if full else 1
+    maha = 0.0
+    for i in range(nv):
+        z[i, 0] = y[i]
+        if full:
+            for v in range(nv):
+                z[i, 1 + v] = cov[n, f, v, i] * dt
+        inv = 1.0 / low[i, i]
+        for col in range(n_col):
+            s = 0.0
+            for k in range(i):
+                s += low[i, k] * z[k, col]
+            z[i, col] = (z[i, col] - s) * inv
+        maha += z[i, 0] * z[i, 0]
+    if full:
+        for aa in range(nv):
+            cx = 0.0
+            for i in range(nv):
+                cx += z[i, 1 + aa] * z[i, 0]
+            v_mean[aa] = v_h[n, f, aa] + cx
+            for bb in range(nv):
+                cx = 0.0
+                for i in range(nv):
+                    cx += z[i, 1 + aa] * z[i, 1 + bb]
+                v_cov[aa, bb] = cov[n, f, aa, bb] - cx
+    return -0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI)
+
+
 def _lse_row(vals: FloatArray, n: int) -> float:
     """log sum exp of vals[:n], max-shifted (all -inf -> -inf)."""
     m = -np.inf
@@ -500,20 +566,19 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     m_max = k_max * n_f
     lj = np.empty(m_max)
     lpost = np.empty(m_max)
-    y_all = np.empty((m_max, nq))
-    vm_all = np.empty((m_max, nv))
-    vc_all = np.empty((m_max, nv, nv))
+    y_pick = np.empty(nq)
+    vm_pick = np.empty(nv)
+    vc_pick = np.empty((nv, nv))
     low = np.zeros((nv, nv))
     z = np.empty((nv, nv + 1))
     a = np.empty((nv, nv))
     corr = np.empty(nv)
     tiny = 1e-12
-    dt2 = dt * dt
     for p in range(n_r):
         s0 = starts[p]
         n_e = starts[p + 1] - s0
         n_m = n_e * n_f
-        # -- proposal of every (entry, f): log p(o), innovation, posterior of v' ----------
+        # -- log p(o) of every (entry, f) (the posterior of v' only for the drawn one) -----
         for e in range(n_e):
             n = s0 + e
             slides = False
@@ -524,67 +589,17 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
             log_pred = 0.0
             for f in range(n_f):
                 m = e * n_f + f
-                if f > 0 and same and has_obs:  # the proposal of f = 0
-                    for i in range(nq):
-                        y_all[m, i] = y_all[m - f, i]
-                    for i in range(nv):
-                        vm_all[m, i] = vm_all[m - f, i]
-                        for j in range(nv):
-                            vc_all[m, i, j] = vc_all[m - f, i, j]
-                    lj[m] = log_alpha[n, f] + log_pred
-                    continue
-                if not has_obs:
-                    lj[m] = log_alpha[n, f]
-                    for i in range(nq):
-                        y_all[m, i] = 0.0
-                    for i in range(nv):
-                        vm_all[m, i] = v_h[n, f, i]
-                        for j in range(nv):
-                            vc_all[m, i, j] = cov[n, f, i, j]
-                    continue
-                for i in range(nq):
-                    r = obs_value[i] - (q[p, i] + dt * v_h[n, f, i])
-                    y_all[m, i] = _wrap(r) if angular[i] else r
-                for j in range(nv):
-                    d = dt2 * cov[n, f, j, j] + s_diag[j, j]
-                    for k in range(j):
-                        d -= low[j, k] * low[j, k]
-                    ljj = math.sqrt(max(d, 1e-300))
-                    low[j, j] = ljj
-                    for i in range(j + 1, nv):
-                        num = dt2 * cov[n, f, i, j] + s_diag[i, j]
-                        for k in range(j):
-                            num -= low[i, k] * low[j, k]
-                        low[i, j] = num / ljj
-                maha = 0.0
-                for i in range(nv):
-                    z[i, 0] = y_all[m, i]
-                    for v in range(nv):
-                        z[i, 1 + v] = cov[n, f, v, i] * dt
-                    inv = 1.0 / low[i, i]
-                    for col in range(nv + 1):
-                        s = 0.0
-                        for k in range(i):
-                            s += low[i, k] * z[k, col]
-                        z[i, col] = (z[i, col] - s) * inv
-                    maha += z[i, 0] * z[i, 0]
-                log_pred = -0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI)
-                lj[m] = log_alpha[n, f] + log_pred
-                for aa in range(nv):
-                    cx = 0.0
-                    for i in range(nv):
-                        cx += z[i, 1 + aa] * z[i, 0]
-                    vm_all[m, aa] = v_h[n, f, aa] + cx
-                    for bb in range(nv):
-                        cx = 0.0
-                        for i in range(nv):
-                            cx += z[i, 1 + aa] * z[i, 1 + bb]
-                        vc_all[m, aa, bb] = cov[n, f, aa, bb] - cx
+                if has_obs and not (f > 0 and same):  # (else: log p(o) of f = 0)
+                    log_pred = _gaussian_at(
+                        p, n, f, q, v_h, cov, obs_value, angular, s_diag, dt, low, z, y_pick,
+                        False, vm_pick, vc_pick,
+                    )  # fmt: skip
+                lj[m] = log_alpha[n, f] + log_pred if has_obs else log_alpha[n, f]
         incr[p] = _lse_row(lj, n_m)
         # -- Gumbel-max draw of one (entry, f) -------------------------------------------
         best = -np.inf
         pick = 0
-        for m in range(n_m):
+        for m in range(n_m if n_m > 1 else 0):  # (a single candidate is the draw)
             if np.isfinite(lj[m]):
                 g = lj[m] - math.log(-math.log(uniforms[p // copies, m]))
                 if g > best:
@@ -593,11 +608,22 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         # (m = e n_f + f is the flat index k n_f + f of the padded layout: e == k)
         n_star = s0 + pick // n_f
         f_star = pick % n_f
+        if has_obs:
+            _gaussian_at(
+                p, n_star, f_star, q, v_h, cov, obs_value, angular, s_diag, dt, low, z, y_pick,
+                True, vm_pick, vc_pick,
+            )  # fmt: skip
+        else:
+            for i in range(nv):
+                y_pick[i] = 0.0
+                vm_pick[i] = v_h[n_star, f_star, i]
+                for j in range(nv):
+                    vc_pick[i, j] = cov[n_star, f_star, i, j]
         # -- v' ~ N(v_mean, v_cov) (symmetrised, jittered), then e_q | v' ------------------
         scale = 0.0
         for i in range(nv):
             for j in range(nv):
-                a[i, j] = 0.5 * (vc_all[pick, i, j] + vc_all[pick, j, i])
+                a[i, j] = 0.5 * (vc_pick[i, j] + vc_pick[j, i])
             scale = abs(a[0, 0]) if i == 0 else max(scale, abs(a[i, i]))
         for i in range(nv):
             a[i, i] += 1e-12 * max(scale, 1e-300)
@@ -608,11 +634,11 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                 s = s + low[i, k] * z_v[p, k]
             corr[i] = s
         for i in range(nv):
-            v_new[p, i] = vm_all[pick, i] + corr[i]
+            v_new[p, i] = vm_pick[i] + corr[i]
         for i in range(nq):
             e_q = q_std[i] * z_q[p, i]
             if has_obs:
-                r = y_all[pick, i] - dt * (v_new[p, i] - v_h[n_star, f_star, i])
+                r = y_pick[i] - dt * (v_new[p, i] - v_h[n_star, f_star, i])
                 e_q = q_gain[i] * r + e_q
             else:
                 e_q = 0.0 + e_q
@@ -633,6 +659,9 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                 m = e * n_f + f
                 if not np.isfinite(log_alpha[n, f]):
                     lpost[m] = -np.inf
+                    continue
+                if n_m == 1:  # a single finite candidate has posterior 1 (any density)
+                    lpost[m] = log_alpha[n, f]
                     continue
                 if same and f_dens >= 0:  # v_h, cov of f_dens: the same density
                     lpost[m] = log_alpha[n, f] + dens
@@ -748,6 +777,9 @@ if AVAILABLE:
     _wrap = numba.njit(cache=True, nogil=True, error_model="numpy")(_wrap)
     _chol_lower = numba.njit(cache=True, nogil=True, error_model="numpy")(_chol_lower)
     _log_diag = numba.njit(cache=True, nogil=True, error_model="numpy")(_log_diag)
+    _gaussian_at = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(
+        _gaussian_at
+    )
     _lse_row = numba.njit(cache=True, nogil=True, error_model="numpy")(_lse_row)
     _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
 
