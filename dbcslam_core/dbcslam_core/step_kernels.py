@@ -506,7 +506,7 @@ def _gaussian_at(  # noqa: PLR0917 - numba helper: positional arrays
                 for i in range(nv):
                     cx += z[i, 1 + aa] * z[i, 1 + bb]
                 v_cov[aa, bb] = cov[n, f, aa, bb] - cx
-    return -0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI)
+    return float(-0.5 * (maha + 2.0 * _log_diag(low, nv) + nv * _LOG_2PI))
 
 
 def _lse_row(vals: FloatArray, n: int) -> float:
