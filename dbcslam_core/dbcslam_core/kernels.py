@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 __all__ = [
     "AVAILABLE",
+    "enumerate_compact",
     "enumerate_tuples",
     "gaussian_update",
     "prepare_tuples",
@@ -555,13 +556,19 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     out_modes: IntArray,
     out_logp: FloatArray,
     out_valid: npt.NDArray[np.bool_],
+    compact: bool,
+    flat_modes: IntArray,
+    flat_logp: FloatArray,
+    counts: IntArray,
 ) -> int:
     """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
     n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
     tuples are screened first, as there); returns the largest valid count. Only the tuples
     whose digits are live (digit c < n_live[p, c], (P, C), at most the radix) are visited, in
     tuple order: the others have log prior -inf and cannot be valid (the slots after the
-    visited tuples stay empty: modes 0, log prior -inf, not valid)."""
+    visited tuples stay empty: modes 0, log prior -inf, not valid). compact: write only the
+    valid hypotheses, row after row, into flat_modes (>= N, C) and flat_logp, and their count
+    per particle into counts (P,), instead of the padded out_* arrays."""
     n_p, n_c, _ = lsp.shape
     n_t = ranks.shape[0]
     truncated = pre_k < n_t
@@ -576,6 +583,7 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     for c in range(n_c - 2, -1, -1):
         stride[c] = stride[c + 1] * (ranks[n_t - 1, c + 1] + 1)
     digit = np.zeros(n_c, dtype=np.int64)
+    offset = 0
     for p in range(n_p):
         n_pre = 0
         n_top = 0
@@ -628,13 +636,22 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         n_valid = 0
         for k in range(n_top):
             t = top_i[k]
-            for c in range(n_c):
-                out_modes[p, k, c] = order[p, c, ranks[t, c]]
             ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
-            out_valid[p, k] = ok
-            out_logp[p, k] = top_v[k] if ok else -np.inf
+            if compact:  # the valid ones (a prefix: sorted by log prior), rows in order
+                if ok:
+                    for c in range(n_c):
+                        flat_modes[offset, c] = order[p, c, ranks[t, c]]
+                    flat_logp[offset] = top_v[k]
+                    offset += 1
+            else:
+                for c in range(n_c):
+                    out_modes[p, k, c] = order[p, c, ranks[t, c]]
+                out_valid[p, k] = ok
+                out_logp[p, k] = top_v[k] if ok else -np.inf
             if ok:
                 n_valid += 1
+        if compact:
+            counts[p] = n_valid
         k_used = max(k_used, n_valid)
     return k_used
 
@@ -731,5 +748,57 @@ def enumerate_tuples(
         out_modes,
         out_logp,
         out_valid,
+        False,
+        np.zeros((0, n_c), dtype=np.int64),
+        np.zeros(0),
+        np.zeros(0, dtype=np.int64),
     )
     return out_modes[:, :k_used], out_logp[:, :k_used], out_valid[:, :k_used]
+
+
+def enumerate_compact(
+    order: IntArray,
+    lsp: FloatArray,
+    *,
+    n_live: IntArray,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray | None,
+    rules: tuple[IntArray, IntArray, IntArray],
+    both_tolerance: float,
+) -> tuple[IntArray, FloatArray, IntArray, int]:
+    """`enumerate_tuples` with the valid hypotheses only, row after row: modes (N, C), log
+    prior (N,), the count of each particle (P,) and K, the largest count (the width of the
+    padded layout). No padded (P, K, C) array is built."""
+    n_p, n_c, _ = lsp.shape
+    flat_modes = np.empty((n_p * n_keep, n_c), dtype=np.int64)
+    flat_logp = np.empty(n_p * n_keep)
+    counts = np.empty(n_p, dtype=np.int64)
+    has_phi = phi is not None
+    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
+    k_used = _enumerate_kernel(
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(lsp, dtype=np.float64),
+        float(threshold),
+        np.ascontiguousarray(ranks, dtype=np.int64),
+        int(n_keep),
+        int(pre_k),
+        ph,
+        has_phi,
+        rules[0],
+        rules[1],
+        rules[2],
+        float(both_tolerance),
+        np.minimum(n_live, ranks[-1] + 1),
+        np.zeros((0, n_keep, n_c), dtype=np.int64),
+        np.zeros((0, n_keep)),
+        np.zeros((0, n_keep), dtype=np.bool_),
+        True,
+        flat_modes,
+        flat_logp,
+        counts,
+    )
+    n = int(counts.sum())
+    return flat_modes[:n], flat_logp[:n], counts, int(k_used)

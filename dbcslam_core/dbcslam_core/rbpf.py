@@ -29,10 +29,11 @@ from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
     Hypotheses,
+    LiveHypotheses,
     Mode,
     ReducedSolution,
     ViolationScales,
-    enumerate_hypotheses,
+    enumerate_live,
     solve_reduced,
     sum_last,
 )
@@ -750,10 +751,10 @@ class DbcSlamFilter:
         free = self._free_motion(inp)
         pred = self._predict_modes(free)
         hyp = self._enumerate(pred, free)
-        if self._compiled_ok(inp, hyp):  # phases 4-6 in one compiled pass per row
+        if self._compiled_ok(inp):  # phases 4-6 in one compiled pass per row
             prop, post = self._compiled_phases(hyp, pred, free, inp)
         else:  # the numpy reference
-            ent = self._live_entries(hyp, pred)
+            ent = self._live_entries(hyp.padded(), pred)
             dyn = self._hypothesis_dynamics(ent, free, inp)
             prop = self._propose(ent, dyn, inp)
             post = self._discrete_posterior(ent, dyn, prop)
@@ -773,7 +774,7 @@ class DbcSlamFilter:
             marg_post=post.marg_post,
             fric_pair=post.fric_pair,
             ess=ess,
-            live=float(hyp.n_live.mean()),
+            live=float(hyp.counts.mean()),
             log_ml=log_ml,
             resampled=resampled,
         )
@@ -874,12 +875,12 @@ class DbcSlamFilter:
             dt=self.dt,
         )
 
-    def _enumerate(self, pred: FloatArray, free: _FreeMotion) -> Hypotheses:
-        """Joint mode hypotheses per row (padded (R, K) layout) from the predicted marginals
-        averaged over the friction belief."""
+    def _enumerate(self, pred: FloatArray, free: _FreeMotion) -> LiveHypotheses:
+        """Joint mode hypotheses per row (the valid ones, row after row) from the predicted
+        marginals averaged over the friction belief."""
         cfg = self.config
         marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
-        return enumerate_hypotheses(
+        return enumerate_live(
             marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
         )
 
@@ -949,23 +950,19 @@ class DbcSlamFilter:
             boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
         return np.asarray((self._sigma_v * boost) ** 2, dtype=np.float64)
 
-    def _compiled_ok(self, inp: _StepInputs, hyp: Hypotheses) -> bool:
+    def _compiled_ok(self, inp: _StepInputs) -> bool:
         """Whether phases 4-6 can run compiled (`step_kernels`): numba present, the compiled
-        backend selected (`contact_modes.DEFAULT_BACKEND`), a reading of every pose dim (or
-        none), and live hypotheses that form a prefix of each row (as enumerated)."""
+        backend selected (`contact_modes.DEFAULT_BACKEND`), and a reading of every pose dim
+        (or none)."""
         if not (step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled"):
             return False
         lin = inp.lin
-        if lin is not None and not (
-            lin.index.size == self.nq and np.array_equal(lin.index, np.arange(self.nq))
-        ):
-            return False
-        n_live = hyp.n_live
-        width = hyp.valid.shape[1]
-        return bool(np.array_equal(hyp.valid, np.arange(width)[None, :] < n_live[:, None]))
+        return lin is None or (
+            lin.index.size == self.nq and bool(np.array_equal(lin.index, np.arange(self.nq)))
+        )
 
     def _compiled_phases(
-        self, hyp: Hypotheses, pred: FloatArray, free: _FreeMotion, inp: _StepInputs
+        self, hyp: LiveHypotheses, pred: FloatArray, free: _FreeMotion, inp: _StepInputs
     ) -> tuple[_Proposal, _Posterior]:
         """Phases 4-6 (`_hypothesis_dynamics`, `_propose`, `_discrete_posterior`) through the
         compiled kernels of `step_kernels`: the same equations per element, the same random
@@ -973,10 +970,10 @@ class DbcSlamFilter:
         cfg = self.config
         ps = self.particles
         n_r = ps.size
-        n_live = hyp.n_live
+        n_live = hyp.counts
         starts = np.zeros(n_r + 1, dtype=np.int64)
         np.cumsum(n_live, out=starts[1:])
-        modes_n = hyp.modes[hyp.valid]  # (N, C), rows in order
+        modes_n = hyp.modes  # (N, C), rows in order
         kin = free.kin
         prev_in = None
         if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per row
@@ -1035,7 +1032,7 @@ class DbcSlamFilter:
         # the random numbers of the numpy path, in its order: Gumbel uniforms over the
         # padded (K, F) layout, then the normals of v' and of the position noise
         # (a bank's copies share their particle's draws: `_shared_draws` without the repeat)
-        uniforms = self.rng.random((n_r // self._n_sub, hyp.modes.shape[1] * self.n_fb))
+        uniforms = self.rng.random((n_r // self._n_sub, hyp.width * self.n_fb))
         normals = self.rng.standard_normal if self._n_sub == 1 else self._shared_normals
         z_v = normals((n_r, self.nq))
         z_q = normals((n_r, self.nq))

@@ -16,7 +16,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dbcslam_core import contact_modes, step_kernels
-from dbcslam_core.contact_modes import Hypotheses
+from dbcslam_core.contact_modes import (
+    ContactLayout,
+    LiveHypotheses,
+    enumerate_hypotheses,
+    enumerate_live,
+)
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig, FilterInput
 from dbcslam_core.synthetic import (
@@ -39,12 +44,12 @@ class _Checked(DbcSlamFilter):
         DbcSlamFilter.__init__(self, *args, **kwargs)
         self.compared: list[int] = []
 
-    def _compiled_phases(self, hyp: Hypotheses, pred: Any, free: Any, inp: Any) -> Any:
+    def _compiled_phases(self, hyp: LiveHypotheses, pred: Any, free: Any, inp: Any) -> Any:
         state = copy.deepcopy(self.rng.bit_generator.state)
         prop, post = super()._compiled_phases(hyp, pred, free, inp)
         after = copy.deepcopy(self.rng.bit_generator.state)
         self.rng.bit_generator.state = state
-        ent = self._live_entries(hyp, pred)
+        ent = self._live_entries(hyp.padded(), pred)
         dyn = self._hypothesis_dynamics(ent, free, inp)
         prop_np = self._propose(ent, dyn, inp)
         post_np = self._discrete_posterior(ent, dyn, prop_np)
@@ -197,3 +202,43 @@ def test_compiled_map_view_equals_numpy_map_view(
             np.testing.assert_array_equal(a, b)
         checked += int(any(np.any(x > 0.0) for x in compiled.weight))
     assert checked > 10  # contacts reached the map
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    threshold=st.sampled_from([1e-3, 1e-2, 0.05]),
+    max_h=st.sampled_from([4, 8, 32]),
+    n_p=st.sampled_from([1, 3, 40]),
+    ties=st.booleans(),
+)
+def test_live_enumeration_equals_padded_enumeration(
+    seed: int, threshold: float, max_h: int, n_p: int, ties: bool
+) -> None:
+    """`enumerate_live` (compiled, no padded arrays) keeps the valid hypotheses of
+    `enumerate_hypotheses` in their order, with their log priors; `padded` restores the
+    padded layout (gripper contacts: geometric exclusions and gaps; exact ties included)."""
+    from dbcslam_core.scenario import gripper_scenario
+
+    sc = gripper_scenario()
+    pcs = sc.potential_contacts
+    layout = ContactLayout(
+        feature_vertex=tuple(c.vertex for c in pcs),
+        obstacle=tuple(c.obstacle for c in pcs),
+        n_vertices=len(sc.body.vertices),
+    )
+    rng = np.random.default_rng(seed)
+    mg = rng.dirichlet(np.full(4, 0.3), size=(n_p, len(pcs)))
+    if ties:  # equal marginals: ties between tuples
+        mg[:, 1:] = mg[:, :1]
+    phi = rng.uniform(-1e-3, 3e-3, size=(n_p, len(pcs)))
+    ref = enumerate_hypotheses(mg, threshold, max_h, layout=layout, phi=phi)
+    live = enumerate_live(mg, threshold, max_h, layout=layout, phi=phi)
+    np.testing.assert_array_equal(live.counts, ref.n_live)
+    np.testing.assert_array_equal(live.modes, ref.modes[ref.valid])
+    np.testing.assert_array_equal(live.log_prior, ref.log_prior[ref.valid])
+    assert live.width == ref.modes.shape[1]
+    pad = live.padded()
+    np.testing.assert_array_equal(pad.valid, ref.valid)
+    np.testing.assert_array_equal(pad.modes[pad.valid], ref.modes[ref.valid])
+    np.testing.assert_array_equal(pad.log_prior, ref.log_prior)
