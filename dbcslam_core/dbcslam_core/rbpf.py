@@ -857,6 +857,20 @@ class DbcSlamFilter:
         cfg = self.config
         ps = self.particles
         kin = free.kin
+        tp = cfg.transition
+        if (
+            step_kernels.AVAILABLE
+            and contact_modes.DEFAULT_BACKEND == "compiled"
+            and not (tp.edge_tolerance > 0.0 and self._edge_partners.size)
+        ):  # one compiled pass (same operations)
+            return step_kernels.predict_modes(
+                ps.modes,
+                kin.phi,
+                free.an,
+                free.at,
+                dt=self.dt,
+                params=(tp.gap_scale, tp.far_gap, tp.slip_scale, tp.slide_floor, tp.persistence),
+            )
         soft = soft_modes(kin.phi, free.an, free.at, self.dt, cfg.transition)
         if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
             prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])

@@ -33,7 +33,7 @@ import numpy.typing as npt
 
 from dbcslam_core import kernels
 
-__all__ = ["AVAILABLE", "entry_dynamics", "map_pending", "propose_rows"]
+__all__ = ["AVAILABLE", "entry_dynamics", "map_pending", "predict_modes", "propose_rows"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -764,8 +764,69 @@ def _map_pending_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                     count[pr] += 1
 
 
+def _sig(x: float) -> float:
+    """`transition._sigmoid` of one value."""
+    return 0.5 * (1.0 + math.tanh(0.5 * x))
+
+
+def _predict_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    prev: FloatArray,
+    phi: FloatArray,
+    an: FloatArray,
+    at: FloatArray,
+    params: FloatArray,
+    out: FloatArray,
+) -> None:
+    """`transition.soft_modes` of the free motion and `transition.mode_transition` (with the
+    far-gap reach) per (row, friction, contact), the same operations in the same order.
+    params = (dt, gap_scale, far_gap, slip_scale, slide_floor, persistence)."""
+    dt, gs, far, slip, floor, rho = (
+        params[0],
+        params[1],
+        params[2],
+        params[3],
+        params[4],
+        params[5],
+    )
+    n_r, n_f, n_c, _ = prev.shape
+    soft = np.empty(4)
+    pred = np.empty(4)
+    for p in range(n_r):
+        for c in range(n_c):
+            g = phi[p, c] + dt * an[p, c]
+            reach = _sig(-(g - far) / gs)
+            pc = _sig(-g / gs) * reach
+            a = at[p, c] / slip
+            p_stick = 1.0 / (1.0 + a * a)
+            p_slide = 1.0 - p_stick
+            d = _sig(10.0 * a)
+            soft[1] = max(p_stick, floor)
+            soft[2] = max(p_slide * d, floor)
+            soft[3] = max(p_slide * (1.0 - d), floor)
+            tot = soft[1] + soft[2] + soft[3]
+            for m in range(1, 4):
+                soft[m] = soft[m] / tot * pc
+            soft[0] = 1.0 - pc
+            stay = 1.0 - reach
+            for f in range(n_f):
+                for m in range(4):
+                    pred[m] = rho * prev[p, f, c, m] + (1.0 - rho) * soft[m]
+                moved = pred[1] * stay
+                for m in range(2, 4):
+                    moved += pred[m] * stay
+                pred[0] += moved
+                for m in range(1, 4):
+                    pred[m] *= reach
+                total = max(pred[0] + pred[1] + pred[2] + pred[3], 1e-300)
+                for m in range(4):
+                    out[p, f, c, m] = pred[m] / total
+
+
 if AVAILABLE:
     import numba
+
+    _sig = numba.njit(cache=True, nogil=True, error_model="numpy")(_sig)
+    _predict_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_predict_kernel)
 
     _map_pending_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(
         _map_pending_kernel
@@ -1018,3 +1079,30 @@ def map_pending(
         None if count[pr] == 0 else (sums[pr, :, : int(n_cand[pr])], wsum[pr])
         for pr in range(n_pairs)
     ]
+
+
+def predict_modes(
+    previous: FloatArray,
+    phi: FloatArray,
+    gap_rate_free: FloatArray,
+    vt_free: FloatArray,
+    *,
+    dt: float,
+    params: tuple[float, float, float, float, float],
+) -> FloatArray:
+    """Predicted per-contact mode marginals (R, F, C, 4) from the previous ones previous (R,
+    F, C, 4) and the free motion (phi, gap_rate_free, vt_free (R, C): m, m/s, m/s): the
+    softened NCP checks (`transition.soft_modes`) and the persistence transition with the
+    far-gap reach (`transition.mode_transition`), without edge consistency. params =
+    (gap_scale, far_gap, slip_scale, slide_floor, persistence) of `TransitionParams`."""
+    prev = np.ascontiguousarray(previous, dtype=np.float64)
+    out = np.empty(prev.shape)
+    _predict_kernel(
+        prev,
+        np.ascontiguousarray(phi, dtype=np.float64),
+        np.ascontiguousarray(gap_rate_free, dtype=np.float64),
+        np.ascontiguousarray(vt_free, dtype=np.float64),
+        np.asarray((dt, *params), dtype=np.float64),
+        out,
+    )
+    return out

@@ -242,3 +242,36 @@ def test_live_enumeration_equals_padded_enumeration(
     np.testing.assert_array_equal(pad.valid, ref.valid)
     np.testing.assert_array_equal(pad.modes[pad.valid], ref.modes[ref.valid])
     np.testing.assert_array_equal(pad.log_prior, ref.log_prior)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n_f=st.sampled_from([1, 3]),
+    scale=st.sampled_from([1e-4, 1e-3, 3e-2]),
+)
+def test_compiled_mode_prediction_equals_transition(seed: int, n_f: int, scale: float) -> None:
+    """`predict_modes` = `soft_modes` + `mode_transition` with the far-gap reach (to
+    round-off: the same operations, numba's tanh for numpy's)."""
+    from dbcslam_core.transition import TransitionParams, mode_transition, soft_modes
+
+    rng = np.random.default_rng(seed)
+    tp = TransitionParams()
+    n_r, n_c, dt = 25, 6, 0.01
+    phi = rng.normal(0.0, scale, (n_r, n_c))
+    an = rng.normal(0.0, 50.0 * scale, (n_r, n_c))
+    at = rng.normal(0.0, 0.05, (n_r, n_c))
+    prev = rng.dirichlet(np.full(4, 0.5), (n_r, n_f, n_c))
+    soft = soft_modes(phi, an, at, dt, tp)
+    ref = mode_transition(
+        prev, soft[:, None], tp, phi=phi[:, None], gap_rate_free=an[:, None], dt=dt
+    )
+    out = step_kernels.predict_modes(
+        prev,
+        phi,
+        an,
+        at,
+        dt=dt,
+        params=(tp.gap_scale, tp.far_gap, tp.slip_scale, tp.slide_floor, tp.persistence),
+    )
+    np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-15)
