@@ -647,7 +647,10 @@ def _solve_small(amat: FloatArray, rhs: FloatArray) -> FloatArray:
             raise SolverError(msg) from err
     if not np.isfinite(x).all():
         n_bad = int((~np.isfinite(x)).any(axis=(1, 2)).sum())
-        msg = f"reduced dynamics system is singular for {n_bad} of {amat.shape[0]} assignments"
+        msg = (
+            f"reduced dynamics system is singular or its solution overflows for {n_bad} of "
+            f"{amat.shape[0]} assignments"
+        )
         raise SolverError(msg)
     return np.asarray(x, dtype=np.float64)
 
