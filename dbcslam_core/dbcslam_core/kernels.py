@@ -118,11 +118,10 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
     irs: FloatArray,
 ) -> int:
     """Fill the outputs of every lead element; returns the number of singular systems.
-
-    Why one function of ~200 lines: numba compiles one loop with all scratch arrays
-    allocated once; splitting it into calls that pass ten arrays each costs clarity, not
-    speed, but the steps are marked and mirror the numpy path of `solve_reduced`.
-    """
+    The steps are marked and mirror the numpy path of `solve_reduced`."""
+    # Long because: one fused loop with the scratch arrays allocated once keeps each
+    # element's temporaries in registers; its sibling `step_kernels._entry_kernel` (the same
+    # steps per live entry) split into inlined helpers measured 1.5x slower.
     n_g, n_c = md.shape
     nv = vf.shape[1]
     n_m = gi.shape[0]
@@ -627,33 +626,59 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                     ):
                         lp = -np.inf
                 n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
-        m = top_v[0] if np.isfinite(top_v[0]) else 0.0
-        tot = 0.0
-        for k in range(n_top):
-            e[k] = np.exp(top_v[k] - m) if top_v[k] > -np.inf else 0.0
-            tot += e[k]
-        tot = max(tot, 1e-300)
-        n_valid = 0
-        for k in range(n_top):
-            t = top_i[k]
-            ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
-            if compact:  # the valid ones (a prefix: sorted by log prior), rows in order
-                if ok:
-                    for c in range(n_c):
-                        flat_modes[offset, c] = order[p, c, ranks[t, c]]
-                    flat_logp[offset] = top_v[k]
-                    offset += 1
-            else:
-                for c in range(n_c):
-                    out_modes[p, k, c] = order[p, c, ranks[t, c]]
-                out_valid[p, k] = ok
-                out_logp[p, k] = top_v[k] if ok else -np.inf
-            if ok:
-                n_valid += 1
-        if compact:
-            counts[p] = n_valid
+        n_valid, offset = _emit_row(
+            p, (top_v, top_i, e, n_top), order, ranks, threshold, compact,
+            (out_modes, out_logp, out_valid), (flat_modes, flat_logp, counts), offset,
+        )  # fmt: skip
         k_used = max(k_used, n_valid)
     return k_used
+
+
+def _emit_row(  # noqa: PLR0917 - numba helper (inlined): positional arrays
+    p: int,
+    top: tuple[FloatArray, IntArray, FloatArray, int],
+    order: IntArray,
+    ranks: IntArray,
+    threshold: float,
+    compact: bool,
+    padded: tuple[IntArray, FloatArray, npt.NDArray[np.bool_]],
+    flat: tuple[IntArray, FloatArray, IntArray],
+    offset: int,
+) -> tuple[int, int]:
+    """Particle p's kept tuples top = (log priors, tuple indices, scratch, count), sorted:
+    valid = the first, and those whose normalised probability is >= threshold; written to
+    the padded arrays (modes, log prior, valid) or, compact, the valid ones to flat = (modes,
+    log prior, counts) from row offset. Returns (valid count, next offset)."""
+    top_v, top_i, e, n_top = top
+    out_modes, out_logp, out_valid = padded
+    flat_modes, flat_logp, counts = flat
+    n_c = order.shape[1]
+    m = top_v[0] if np.isfinite(top_v[0]) else 0.0
+    tot = 0.0
+    for k in range(n_top):
+        e[k] = np.exp(top_v[k] - m) if top_v[k] > -np.inf else 0.0
+        tot += e[k]
+    tot = max(tot, 1e-300)
+    n_valid = 0
+    for k in range(n_top):
+        t = top_i[k]
+        ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
+        if compact:  # the valid ones (a prefix: sorted by log prior), rows in order
+            if ok:
+                for c in range(n_c):
+                    flat_modes[offset, c] = order[p, c, ranks[t, c]]
+                flat_logp[offset] = top_v[k]
+                offset += 1
+        else:
+            for c in range(n_c):
+                out_modes[p, k, c] = order[p, c, ranks[t, c]]
+            out_valid[p, k] = ok
+            out_logp[p, k] = top_v[k] if ok else -np.inf
+        if ok:
+            n_valid += 1
+    if compact:
+        counts[p] = n_valid
+    return n_valid, offset
 
 
 def _prepare_kernel(
@@ -689,6 +714,7 @@ if AVAILABLE:
     _prepare_kernel = numba.njit(cache=True, nogil=True)(_prepare_kernel)
     _insert_desc = numba.njit(cache=True, nogil=True)(_insert_desc)
     _feasible = numba.njit(cache=True, nogil=True)(_feasible)
+    _emit_row = numba.njit(cache=True, nogil=True, inline="always")(_emit_row)
     _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
 
 

@@ -981,19 +981,61 @@ class DbcSlamFilter:
         """Phases 4-6 (`_hypothesis_dynamics`, `_propose`, `_discrete_posterior`) through the
         compiled kernels of `step_kernels`: the same equations per element, the same random
         numbers in the same order, values equal to round-off."""
+        n_live = hyp.counts
+        starts = np.zeros(self.particles.size + 1, dtype=np.int64)
+        np.cumsum(n_live, out=starts[1:])
+        sig2 = self._velocity_noise()
+        out = self._compiled_dynamics(starts, hyp.modes, pred, free, inp=inp, sig2=sig2)
+        log_alpha = out["log_alpha"]
+        if inp.force is not None and inp.force_obstacle is not None:
+            pi = np.repeat(np.arange(self.particles.size), n_live)
+            log_alpha = log_alpha + self._force_log_likelihood(
+                inp.force,
+                inp.force_obstacle,
+                (out["ln"], out["lt"], out["impulse_response"]),
+                free.kin.normal[pi],
+                sig2,
+            )
+        res = self._compiled_proposal(starts, hyp, out, log_alpha, free=free, inp=inp)
+        pair_in = res["pair_in"]
+        if self._surface_pair is not None:
+            pair_in[:, self._surface_pair] = 1.0  # always on the support
+        marg_post = res["marg_post"]
+        fric_post = res["fric_post"]
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
+        post = _Posterior(
+            fric_post,
+            fric_pair,
+            res["modes_post"],
+            marg_post,
+            pair_in,
+            1.0 - marg_post[:, :, Mode.SEPARATED],
+        )
+        return _Proposal(res["incr"], res["v_new"], res["q_new"]), post
+
+    def _compiled_dynamics(
+        self,
+        starts: IntArray,
+        modes_n: IntArray,
+        pred: FloatArray,
+        free: _FreeMotion,
+        *,
+        inp: _StepInputs,
+        sig2: FloatArray,
+    ) -> dict[str, Any]:
+        """Phase 4 compiled (`step_kernels.entry_dynamics`): per live entry (rows starts,
+        modes modes_n (N, C)) x friction the post-step velocity, impulses, noise covariance
+        and proposal weight log alpha (without a force reading)."""
         cfg = self.config
         ps = self.particles
-        n_r = ps.size
-        n_live = hyp.counts
-        starts = np.zeros(n_r + 1, dtype=np.int64)
-        np.cumsum(n_live, out=starts[1:])
-        modes_n = hyp.modes  # (N, C), rows in order
         kin = free.kin
         prev_in = None
         if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per row
             prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
-        sig2 = self._velocity_noise()
-        sensitivity = inp.force is not None
         with np.errstate(divide="ignore"):
             log_pred = np.log(pred)
         out, n_bad = step_kernels.entry_dynamics(
@@ -1024,7 +1066,7 @@ class DbcSlamFilter:
                 -1.0 if cfg.gap_tolerance is None else cfg.gap_tolerance,
                 cfg.constrained_noise,
             ),
-            sensitivity=sensitivity,
+            sensitivity=inp.force is not None,
             work=self._work,
         )
         if n_bad or not np.isfinite(out["v_next"]).all():
@@ -1033,28 +1075,33 @@ class DbcSlamFilter:
                 f"{out['score'].size} assignments"
             )
             raise SolverError(msg)
-        log_alpha = out["log_alpha"]
-        if inp.force is not None and inp.force_obstacle is not None:
-            pi = np.repeat(np.arange(n_r), n_live)
-            log_alpha = log_alpha + self._force_log_likelihood(
-                inp.force,
-                inp.force_obstacle,
-                (out["ln"], out["lt"], out["impulse_response"]),
-                kin.normal[pi],
-                sig2,
-            )
-        # the random numbers of the numpy path, in its order: Gumbel uniforms over the
-        # padded (K, F) layout, then the normals of v' and of the position noise
-        # (a bank's copies share their particle's draws: `_shared_draws` without the repeat)
+        return out
+
+    def _compiled_proposal(
+        self,
+        starts: IntArray,
+        hyp: LiveHypotheses,
+        out: dict[str, Any],
+        log_alpha: FloatArray,
+        *,
+        free: _FreeMotion,
+        inp: _StepInputs,
+    ) -> dict[str, FloatArray]:
+        """Phases 5-6 compiled (`step_kernels.propose_rows`), with the random numbers of the
+        numpy path in its order: Gumbel uniforms over the padded (K, F) layout (a bank's
+        copies share their particle's: `_shared_draws` without the repeat), then the normals
+        of v' and of the position noise."""
+        ps = self.particles
+        n_r = ps.size
         uniforms = self.rng.random((n_r // self._n_sub, hyp.width * self.n_fb))
         normals = self.rng.standard_normal if self._n_sub == 1 else self._shared_normals
         z_v = normals((n_r, self.nq))
         z_q = normals((n_r, self.nq))
         lin = inp.lin
         _, s_diag, q_gain, q_std = observation_terms(lin, self._sigma_q, self.nq)
-        res = step_kernels.propose_rows(
+        return step_kernels.propose_rows(
             starts,
-            modes_n,
+            hyp.modes,
             q=ps.q,
             v_h=out["v_next"],
             cov=out["cov"],
@@ -1070,25 +1117,6 @@ class DbcSlamFilter:
             z_q=z_q,
             pair_mask=self._pair_mask,
         )
-        pair_in = res["pair_in"]
-        if self._surface_pair is not None:
-            pair_in[:, self._surface_pair] = 1.0  # always on the support
-        marg_post = res["marg_post"]
-        fric_post = res["fric_post"]
-        fric_pair = (
-            self._pair_marginals(fric_post)
-            if self._n_sub == 1
-            else np.empty((0, self.n_pairs, self._k_max))
-        )
-        post = _Posterior(
-            fric_post,
-            fric_pair,
-            res["modes_post"],
-            marg_post,
-            pair_in,
-            1.0 - marg_post[:, :, Mode.SEPARATED],
-        )
-        return _Proposal(res["incr"], res["v_new"], res["q_new"]), post
 
     def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
         """Optimal proposal: per entry x friction the Gaussian posterior of v' given the
