@@ -46,3 +46,15 @@ def test_top_level_is_the_required_one() -> None:
     assert dirs <= TOP_LEVEL, f"unexpected top-level folders: {sorted(dirs - TOP_LEVEL)}"
     rows = {p.rstrip("/") for p in _layout_paths()}
     assert {d for d in TOP_LEVEL if d != "dbcslam_ros"} <= rows
+
+
+def test_the_tests_row_names_every_test_folder() -> None:
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    row = next(line for line in text.splitlines() if line.startswith("| `tests/` |"))
+    named = set(re.findall(r"`(tests/[a-z_]+)`", row))
+    folders = {
+        f"tests/{p.name}"
+        for p in (REPO / "tests").iterdir()
+        if p.is_dir() and any(p.glob("test_*.py"))
+    }
+    assert named == folders, f"tests row names {sorted(named)}, the tree has {sorted(folders)}"
