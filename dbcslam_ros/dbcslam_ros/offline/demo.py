@@ -36,7 +36,7 @@ from typing import IO, Any
 
 from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, SCENARIO
 from dbcslam_ros.errors import DbcSlamRosError, UsageError
-from dbcslam_ros.node.filter_node import LIVE_PARTICLES
+from dbcslam_ros.node.params import LIVE_PARTICLES
 
 __all__ = ["DEFAULT_PARTICLES", "SCENARIOS", "DemoError", "DemoOptions", "DemoResult", "run_demo"]
 

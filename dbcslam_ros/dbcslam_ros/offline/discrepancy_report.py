@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.discrepancy import Analysis, DiscrepancyConfig, Run, analyse
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros.bag import find_bags, open_bag
 from dbcslam_ros.contract import JOINT_STATES, OBJECT_POSE, OBJECT_WRENCH, SCENARIO
+from dbcslam_ros.convert import header_ns, planar_pose
 from dbcslam_ros.errors import BagError, UsageError
 
 __all__ = ["filter_tracking", "load_run", "run_discrepancy", "write_report"]
@@ -36,14 +36,6 @@ __all__ = ["filter_tracking", "load_run", "run_discrepancy", "write_report"]
 F64 = NDArray[np.float64]
 NS = 1_000_000_000
 INPUT_TOPICS = (SCENARIO, OBJECT_POSE, OBJECT_WRENCH, JOINT_STATES)
-
-
-def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def _yaw(q: Any) -> float:
-    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
 
 
 def load_run(path: str | Path) -> Run:
@@ -64,24 +56,16 @@ def load_run(path: str | Path) -> Run:
                         problem = f"{p}: /scenario does not parse: {err}"
                         raise BagError(problem) from err
                 elif raw.topic == OBJECT_POSE:
-                    pz = msg.pose
-                    poses.append(
-                        (
-                            _stamp(msg.header),
-                            float(pz.position.x),
-                            float(pz.position.y),
-                            _yaw(pz.orientation),
-                        )
-                    )
+                    poses.append((header_ns(msg), *planar_pose(msg.pose)))
                 elif raw.topic == OBJECT_WRENCH:
                     w = msg.wrench
                     wrenches.append(
-                        (_stamp(msg.header), float(w.force.x), float(w.force.y), float(w.torque.z))
+                        (header_ns(msg), float(w.force.x), float(w.force.y), float(w.torque.z))
                     )
                 elif raw.topic == JOINT_STATES:
                     names = [str(n) for n in msg.name]
                     pos = [float(x) for x in msg.position]
-                    joints.append((_stamp(msg.header), dict(zip(names, pos, strict=False))))
+                    joints.append((header_ns(msg), dict(zip(names, pos, strict=False))))
     except BagError:
         raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
@@ -232,7 +216,7 @@ def filter_tracking(
     ``rmse_vs_observations`` (``gain_basis`` names which). The truth topics are read here
     only, never by the analysis itself.
     """
-    from dbcslam_ros.node.filter_node import load_extensions
+    from dbcslam_ros.node.params import load_extensions
     from dbcslam_ros.node.session import observation_correction
     from dbcslam_ros.offline.evaluate import load_bag_arrays, match_stamps
     from dbcslam_ros.offline.replay import ReplayOptions, replay_bag

@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
@@ -74,6 +73,7 @@ from dbcslam_ros.contract import (
     TRUTH_POSE,
     TRUTH_TOPICS,
 )
+from dbcslam_ros.convert import header_ns, planar_pose
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -187,18 +187,6 @@ class BagArrays:
         return min(firsts) if firsts else 0
 
 
-def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def _yaw(q: Any) -> float:
-    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
-
-
-def _planar(pose: Any) -> tuple[float, float, float]:
-    return (float(pose.position.x), float(pose.position.y), _yaw(pose.orientation))
-
-
 def _array(msg: Any) -> FloatArray:
     dims = [int(d.size) for d in msg.layout.dim]
     data = np.asarray(msg.data, dtype=np.float64).reshape(-1)
@@ -298,8 +286,8 @@ class _Messages:
     def add(self, topic: str, lt: int, msg: Any) -> None:
         """Keep one decoded message of ``topic`` logged at ``lt`` (ns)."""
         if topic == POSE:
-            stamp = _stamp(msg.header)
-            self.est.append((stamp, _planar(msg.pose.pose), _planar_cov(msg.pose.covariance)))
+            stamp = header_ns(msg)
+            self.est.append((stamp, planar_pose(msg.pose.pose), _planar_cov(msg.pose.covariance)))
             self.est_log.append((lt, stamp))
         elif topic == CONTACT_MODES:
             self.modes.append((lt, _array(msg)))
@@ -308,8 +296,8 @@ class _Messages:
         elif topic == FRICTION_MAP:
             self.friction_map = _friction_grid(msg)
         elif topic == TRUTH_POSE:
-            stamp = _stamp(msg.header)
-            self.truth.append((stamp, _planar(msg.pose)))
+            stamp = header_ns(msg)
+            self.truth.append((stamp, planar_pose(msg.pose)))
             self.truth_log.append((lt, stamp))
         elif topic == TRUTH_CONTACT_MODES:
             self.tmodes.append((lt, _array(msg)))
@@ -320,18 +308,18 @@ class _Messages:
         elif topic == PUSHER_WRENCH_TOPIC:
             w = msg.wrench
             self.forces.append(
-                (_stamp(msg.header), (float(w.force.x), float(w.force.y), float(w.torque.z)))
+                (header_ns(msg), (float(w.force.x), float(w.force.y), float(w.torque.z)))
             )
         elif topic == JOINT_STATES:
             positions = dict(zip(msg.name, (float(v) for v in msg.position), strict=False))
-            self.joints.append((_stamp(msg.header), positions))
+            self.joints.append((header_ns(msg), positions))
         elif topic == OBJECT_POSE:
-            self.obs.append((_stamp(msg.header), _planar(msg.pose)))
+            self.obs.append((header_ns(msg), planar_pose(msg.pose)))
         elif topic == DIAGNOSTICS:
             values: dict[str, str] = {}
             for status in msg.status:
                 values.update({str(kv.key): str(kv.value) for kv in status.values})
-            self.diagnostics.append((_stamp(msg.header), values))
+            self.diagnostics.append((header_ns(msg), values))
         elif topic == SCENARIO and self.scenario is None:
             try:
                 self.scenario = Scenario.from_yaml(str(msg.data))

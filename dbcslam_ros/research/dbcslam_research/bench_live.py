@@ -343,7 +343,7 @@ def offline_cpu(
     """
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.convert import JointReading, PoseReading, WrenchReading, estimate_messages
-    from dbcslam_ros.node.filter_node import PARAMETERS, build_config
+    from dbcslam_ros.node.params import PARAMETERS, build_config
     from dbcslam_ros.node.session import FilterSession
     from sim_publisher.node import make_source
 
@@ -464,7 +464,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; exit 0 on success, 1 when a run failed, 2 on bad arguments."""
-    from dbcslam_ros.node.filter_node import live_particles
+    from dbcslam_ros.node.params import live_particles
 
     args = parse_args(argv)
     os.environ["ROS_DOMAIN_ID"] = str(

@@ -171,11 +171,10 @@ def resolve_data(data: str | Path) -> list[Path]:
 def filter_uses_pusher_wrench(params: dict[str, Any] | None = None) -> bool:
     """True when the filter node with these parameters uses ``/pusher/wrench`` as a force
     observation (it subscribes to it and its ``use_pusher_wrench`` parameter is on)."""
-    from dbcslam_ros.node.filter_node import INPUT_TOPICS, coerce_params
+    from dbcslam_ros.contract import INPUT_TOPICS, PUSHER_WRENCH
+    from dbcslam_ros.node.params import coerce_params
 
-    return "/pusher/wrench" in INPUT_TOPICS and bool(
-        coerce_params(params or {})["use_pusher_wrench"]
-    )
+    return PUSHER_WRENCH in INPUT_TOPICS and bool(coerce_params(params or {})["use_pusher_wrench"])
 
 
 def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[str, Any]]:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dbcslam_core.angles import wrap_angle
 from dbcslam_ros.importers import mitpush as mp
 
 __all__ = [
@@ -289,7 +290,7 @@ def _ft_report(series: Sequence[mp.PushSeries]) -> list[str]:
         if moving.any():
             f = s.force[moving, :2]
             tilt = np.arctan2(f[:, 1], f[:, 0]) - math.atan2(push[1], push[0]) - math.pi
-            tilt = (tilt + s.raw.info.angle + math.pi) % (2 * math.pi) - math.pi
+            tilt = wrap_angle(tilt + s.raw.info.angle)
             tilts.append(float(np.median(tilt)))
     lines.append(f"F/T: stale streams in {len(stale)}/{len(series)} files")
     lines.append(
