@@ -506,47 +506,93 @@ def _solve_assignments(
     maps lead elements to geometry elements, mu_rows = (distinct mu rows (U, C), row of each
     lead element (n_m,)).
     """
-    n_g, n_c = modes.shape
+    n_c = modes.shape[1]
     nv = g_ext.shape[-1]
-    n_m = gi.size
-    mu_u, ui = mu_rows
-    two_c = 2 * n_c
+    n_act = sum_last(modes != _SEP)
+    if not (n_act > 0).any():
+        resp = np.broadcast_to(np.eye(nv), (gi.size, nv, nv)).copy()
+        ir0 = np.zeros((gi.size, 2, n_c, nv)) if sensitivity else None
+        return (
+            np.zeros((gi.size, n_c)),
+            np.zeros((gi.size, n_c)),
+            np.zeros((gi.size, nv)),
+            resp,
+            ir0,
+        )
+    eps_g = _tikhonov_eps(modes, g_ext, mw_ext, n_act, eps_rel)
+    sys = _equality_systems(modes, g_ext, mw_ext, a_ext, gi, mu_rows=mu_rows, n_act=n_act)
+    x, dv_t, resp_t = _solve_systems(sys, eps_g.take(sys.src), nv)
+    return _per_element(sys, x, dv_t, resp_t, gi, n_g=modes.shape[0], sensitivity=sensitivity)
+
+
+@dataclass
+class _Systems:
+    """The equality systems of `_solve_assignments`, sorted by size (S systems, R rows at
+    most): src geometry element of each, perm the sort, size_s rows, val_s / ord_s valid
+    rows and their contact slots, gr the constraint rows G, mf the rows of M^-1 F^T, cpl
+    the friction coupling of sliding normal rows, rhs [-a, -G]; g_fix / e_sl the geometry
+    elements solved once and the lead elements with sliding contacts."""
+
+    src: IntArray
+    perm: IntArray
+    size_s: IntArray
+    val_s: npt.NDArray[np.bool_]
+    ord_s: IntArray
+    gr: FloatArray
+    mf: FloatArray
+    cpl: FloatArray
+    rhs: FloatArray
+    g_fix: IntArray
+    e_sl: IntArray
+    n_c: int
+
+
+def _tikhonov_eps(
+    modes: IntArray, g_ext: FloatArray, mw_ext: FloatArray, n_act: IntArray, eps_rel: float
+) -> FloatArray:
+    """Tikhonov term per geometry element: eps_rel * the mean Delassus diagonal over the
+    n_max first-active-then-separated contacts (as the padded formulation)."""
+    n_g, n_c = modes.shape
     sep = modes == _SEP
-    act = ~sep
+    n_max = int(n_act.max())
+    pad = ~sep | (sep & (np.cumsum(sep, axis=1) <= (n_max - n_act)[:, None]))
+    n_rows = n_g * 2 * n_c
+    diag = np.einsum("kv,kv->k", g_ext[:n_rows], mw_ext[:n_rows]).reshape(n_g, 2 * n_c)
+    diag_mean = sum_last(np.where(np.concatenate([pad, pad], axis=1), diag, 0.0)) / (2 * n_max)
+    return np.asarray(eps_rel * np.maximum(diag_mean, 1e-300))
+
+
+def _equality_systems(
+    modes: IntArray,
+    g_ext: FloatArray,
+    mw_ext: FloatArray,
+    a_ext: FloatArray,
+    gi: IntArray,
+    *,
+    mu_rows: tuple[FloatArray, IntArray],
+    n_act: IntArray,
+) -> _Systems:
+    """Equality rows (normal slots of active contacts, tangent slots of sticking ones, valid
+    rows first) of the systems to solve: once per geometry element without sliding contacts,
+    per lead element with sliding contacts (their friction couples lt to ln)."""
+    n_g, n_c = modes.shape
+    two_c = 2 * n_c
+    n_rows = n_g * two_c
+    mu_u, ui = mu_rows
     stick = modes == _STICK
     sgn = (modes == _POS).astype(np.float64) - (modes == _NEG)
-    n_act = sum_last(act)
-    solve_g = n_act > 0
-    if not solve_g.any():
-        resp = np.broadcast_to(np.eye(nv), (n_m, nv, nv)).copy()
-        ir0 = np.zeros((n_m, 2, n_c, nv)) if sensitivity else None
-        return np.zeros((n_m, n_c)), np.zeros((n_m, n_c)), np.zeros((n_m, nv)), resp, ir0
-    # Tikhonov scale of the padded formulation (n_max over all elements with contacts).
-    n_max = int(n_act.max())
-    pad = act | (sep & (np.cumsum(sep, axis=1) <= (n_max - n_act)[:, None]))
-    n_rows = n_g * two_c
-    diag = np.einsum("kv,kv->k", g_ext[:n_rows], mw_ext[:n_rows]).reshape(n_g, two_c)
-    diag_mean = sum_last(np.where(np.concatenate([pad, pad], axis=1), diag, 0.0)) / (2 * n_max)
-    eps_g = eps_rel * np.maximum(diag_mean, 1e-300)
-    # Equality rows: normal slots (0..C-1) of active contacts, tangent slots (C..2C-1) of
-    # sticking ones, valid rows first.
-    slot_ok = np.concatenate([act, stick], axis=1)  # (G, 2C)
+    slot_ok = np.concatenate([modes != _SEP, stick], axis=1)  # (G, 2C)
     r_cnt = n_act + sum_last(stick)  # = slot_ok.sum(axis=1)
     r_max = int(r_cnt.max())
     order = np.argsort(~slot_ok, axis=1, kind="stable")[:, :r_max]  # (G, R)
     slides = sum_last(modes >= _POS) > 0  # any sliding contact (sgn != 0)
-    # systems to solve: once per geometry element without sliding contacts, per lead
-    # element with sliding contacts (their friction couples lt to ln)
-    g_fix = np.flatnonzero(solve_g & ~slides)
+    g_fix = np.flatnonzero((n_act > 0) & ~slides)
     e_sl = np.flatnonzero(slides[gi])
-    n_fix = g_fix.size
     sys_g = np.concatenate([g_fix, gi[e_sl]])  # geometry element of each system (S,)
-    sys_u = np.concatenate([np.zeros(n_fix, dtype=np.int64), ui[e_sl]])  # its mu row
-    n_s = sys_g.size
+    sys_u = np.concatenate([np.zeros(g_fix.size, dtype=np.int64), ui[e_sl]])  # its mu row
     # sort the systems by size: each size class is a contiguous slice solved unpadded
     perm = np.argsort(r_cnt.take(sys_g), kind="stable")
     src = sys_g.take(perm)
-    size_s = r_cnt.take(src)
     ord_s = order.take(src, axis=0)  # (S, R)
     val_s = slot_ok.reshape(-1).take(src[:, None] * two_c + ord_s)
     cont_s = ord_s % n_c
@@ -554,40 +600,67 @@ def _solve_assignments(
     fidx = np.where(val_s, base + ord_s, n_rows)  # invalid rows -> the zero row
     gr = g_ext.take(fidx, axis=0)  # (S, R, nv) constraint rows G
     mf = mw_ext.take(fidx, axis=0)  # rows of M^-1 F^T; sliding normal rows: below
-    cpl = np.zeros((n_s, r_max))
+    cpl = np.zeros((src.size, r_max))
     if e_sl.size:
         is_n = val_s & (ord_s < n_c)
         row_sgn = np.where(is_n, sgn.take(src[:, None] * n_c + cont_s), 0.0)
         mu_sel = mu_u.take(sys_u.take(perm)[:, None] * n_c + cont_s)
         cpl = row_sgn * mu_sel
         mf -= cpl[..., None] * mw_ext.take(base + n_c + cont_s, axis=0)
-    rhs = np.empty((n_s, r_max, 1 + nv))  # [-a, -G] (S, R, 1 + nv)
+    rhs = np.empty((src.size, r_max, 1 + g_ext.shape[-1]))  # [-a, -G] (S, R, 1 + nv)
     np.negative(a_ext.take(fidx), out=rhs[..., 0])
     np.negative(gr, out=rhs[..., 1:])
-    eps_s = eps_g.take(src)
-    x = np.zeros_like(rhs)
+    size_s = r_cnt.take(src)
+    return _Systems(src, perm, size_s, val_s, ord_s, gr, mf, cpl, rhs, g_fix, e_sl, n_c)
+
+
+def _solve_systems(
+    sys: _Systems, eps_s: FloatArray, nv: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(G M^-1 F^T + eps I) x = [-a, -G] per size class (1, 2, the rest padded): the
+    solutions x (S, R, 1 + nv), dv (S + 1, nv) and the velocity response (S + 1, nv, nv); row
+    S (zero dv, identity response) stands for the elements without contacts."""
+    n_s, r_max = sys.val_s.shape
+    x = np.zeros_like(sys.rhs)
     dv_t = np.zeros((n_s + 1, nv))
     resp_t = np.zeros((n_s + 1, nv, nv))
-    bounds = np.searchsorted(size_s, [1, 2, 3, r_max + 1])
+    bounds = np.searchsorted(sys.size_s, [1, 2, 3, r_max + 1])
     for k, a, b in ((1, bounds[0], bounds[1]), (2, bounds[1], bounds[2]), (r_max, bounds[2], n_s)):
         if b <= a or k < 1:
             continue
-        mf_t = np.swapaxes(mf[a:b, :k], 1, 2)  # M^-1 F^T (n, nv, k)
-        amat = gr[a:b, :k] @ mf_t
+        mf_t = np.swapaxes(sys.mf[a:b, :k], 1, 2)  # M^-1 F^T (n, nv, k)
+        amat = sys.gr[a:b, :k] @ mf_t
         ar = np.arange(k)
-        amat[:, ar, ar] += np.where(val_s[a:b, :k], eps_s[a:b, None], 1.0)
-        xk = _solve_small(amat, rhs[a:b, :k])
+        amat[:, ar, ar] += np.where(sys.val_s[a:b, :k], eps_s[a:b, None], 1.0)
+        xk = _solve_small(amat, sys.rhs[a:b, :k])
         x[a:b, :k] = xk
         dv_t[a:b] = (mf_t @ xk[..., :1])[..., 0]
         resp_t[a:b] = mf_t @ xk[..., 1:]
     resp_t[:, np.arange(nv), np.arange(nv)] += 1.0
-    # scatter rows back to contact slots (invalid rows -> a dummy slot 2C); an extra zero
-    # system row S stands for the elements without contacts
-    slot = np.arange(n_s)[:, None] * (two_c + 1) + np.where(val_s, ord_s, two_c)
+    return x, dv_t, resp_t
+
+
+def _per_element(
+    sys: _Systems,
+    x: FloatArray,
+    dv_t: FloatArray,
+    resp_t: FloatArray,
+    gi: IntArray,
+    *,
+    n_g: int,
+    sensitivity: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+    """The systems' rows scattered back to contact slots (invalid rows -> a dummy slot 2C),
+    then each lead element's (ln, lt, dv, response, sensitivity) from its system's row."""
+    n_s = sys.src.size
+    n_c = sys.n_c
+    two_c = 2 * n_c
+    nv = dv_t.shape[1]
+    slot = np.arange(n_s)[:, None] * (two_c + 1) + np.where(sys.val_s, sys.ord_s, two_c)
     lam_slots = np.zeros((n_s + 1, two_c + 1))
     lam_slots.reshape(-1)[slot] = x[..., 0]
     cpl_slots = np.zeros((n_s + 1, two_c + 1))
-    cpl_slots.reshape(-1)[slot] = cpl
+    cpl_slots.reshape(-1)[slot] = sys.cpl
     cpl_c = cpl_slots[:, :n_c]  # coupling per contact: lt = -c ln (sliding)
     ln_t = lam_slots[:, :n_c]
     lt_t = lam_slots[:, n_c:two_c] - cpl_c * ln_t
@@ -598,12 +671,13 @@ def _solve_assignments(
         ir_n = sens_slots[:, :n_c]
         ir_t = np.stack([ir_n, sens_slots[:, n_c:two_c] - cpl_c[..., None] * ir_n], axis=1)
     # system row of each lead element
+    n_fix = sys.g_fix.size
     inv = np.empty(n_s, dtype=np.int64)
-    inv[perm] = np.arange(n_s)
+    inv[sys.perm] = np.arange(n_s)
     pos_g = np.full(n_g, n_s)
-    pos_g[g_fix] = inv[:n_fix]
+    pos_g[sys.g_fix] = inv[:n_fix]
     row_e = pos_g.take(gi)
-    row_e[e_sl] = inv[n_fix:]
+    row_e[sys.e_sl] = inv[n_fix:]
     return (
         ln_t.take(row_e, axis=0),
         lt_t.take(row_e, axis=0),

@@ -568,6 +568,9 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     visited tuples stay empty: modes 0, log prior -inf, not valid). compact: write only the
     valid hypotheses, row after row, into flat_modes (>= N, C) and flat_logp, and their count
     per particle into counts (P,), instead of the padded out_* arrays."""
+    # Long because: a numba entry point with 19 positional arrays (signature and docstring
+    # are half of it); the per-particle odometer loop stays in one function so that the
+    # scratch arrays are allocated once per call (the row output is already `_emit_row`).
     n_p, n_c, _ = lsp.shape
     n_t = ranks.shape[0]
     truncated = pre_k < n_t

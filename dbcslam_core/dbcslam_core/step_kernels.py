@@ -1023,6 +1023,8 @@ def entry_dynamics(
     caller): the outputs are then views of them, valid until the next call with the same
     work.
     """
+    # Long because: the argument list, its documentation and the one call that hands ~30
+    # contiguous arrays to the compiled kernel; there is no logic here to split.
     n_e, n_c = md.shape
     nv = jn.shape[2]
     n_r = starts.shape[0] - 1
@@ -1110,6 +1112,8 @@ def propose_rows(
     Returns incr (R,) the evidence, v_new and q_new (R, nq) the sampled state, fric_post
     (R, F), modes_post (R, F, C, 4), marg_post (R, C, 4) and pair_in (R, pairs).
     """
+    # Long because: the argument list, its documentation and the one call that hands the
+    # arrays to the compiled kernel; there is no logic here to split.
     n_r = starts.shape[0] - 1
     n_c = md.shape[1]
     n_f = log_alpha.shape[1]
