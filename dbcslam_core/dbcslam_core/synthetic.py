@@ -591,7 +591,8 @@ def push_sweep_trajectory(
     t0 = 0.0
     while t0 < duration:
         v, on = float(rng.uniform(0.1, 0.25)), float(rng.uniform(0.5, 0.9))
-        speed += v * _smoothstep(t, t0, t0 + 0.05) * (1.0 - _smoothstep(t, t0 + on, t0 + on + 0.05))
+        ramp_up = _smoothstep(t, t0, t0 + 0.05)
+        speed += v * ramp_up * (1.0 - _smoothstep(t, t0 + on, t0 + on + 0.05))
         t0 += on + 0.05 + float(rng.uniform(0.25, 0.45))
     amp = float(rng.uniform(0.01, 0.025)) * (1.0 if rng.random() < 0.5 else -1.0)
     period = float(rng.uniform(2.0, 3.5))

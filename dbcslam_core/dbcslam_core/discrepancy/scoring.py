@@ -32,8 +32,8 @@ from types import TracebackType
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dynamics import PlanarModel, State
 from ..angles import wrap_angle
+from ..dynamics import PlanarModel, State
 from ..errors import DbcSlamError, ModelError
 from ..extensions import ModelExtension
 from ..lcp import PGSSolver

@@ -259,7 +259,13 @@ def _outcome(res: Analysis, ext: ModelExtension | None, scenario: Scenario) -> s
 
 
 def _row(
-    scenario: str, i: int, is_clean: bool, ext: ModelExtension | None, res: Analysis, secs: float
+    scenario: str,
+    i: int,
+    *,
+    is_clean: bool,
+    ext: ModelExtension | None,
+    res: Analysis,
+    secs: float,
 ) -> dict[str, Any]:
     w = res.winner
     return {
@@ -314,7 +320,7 @@ def run(
         t0 = time.monotonic()
         res = analyse([train], [held], cfg, progress=_say if verbose else None)
         secs = time.monotonic() - t0
-        row = _row(scenario, i, is_clean, ext, res, secs)
+        row = _row(scenario, i, is_clean=is_clean, ext=ext, res=res, secs=secs)
         row["outcome"] = outcome = _outcome(res, ext, train.scenario)
         rows.append(row)
         (out / "science.json").write_text(json.dumps(kept + rows, indent=1) + "\n")
