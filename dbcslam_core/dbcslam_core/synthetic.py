@@ -662,8 +662,9 @@ PUSH_HIDDEN_EFFECTS: tuple[str, ...] = (
 """Effects of the contract vocabulary observable in push data (`push_sweep_trajectory`:
 position-controlled pusher, no applied wrench, support friction estimated by the filter).
 
-In: viscous_damping (at each stop the block coasts 5-30 mm on the support friction; a drag
-of 1.5-4 N s/m per kg at 0.1-0.25 m/s is 10-40 % of the support force m g mu); sensor_delay
+In: viscous_damping (at each stop the block coasts off the pusher, 1-33 mm for support mu
+0.4-0.1; a drag of 3.7 N s/m per kg shortens the coasts by 20-40 %, measured on seed 3:
+a deceleration profile the filter's discrete support candidates do not reproduce); sensor_delay
 (the pusher, a known input, starts and stops the block); sensor_bias (y, the push direction:
 the block's back side rests on the known pusher; x and yaw are drawn within one noise
 std: a point contact on a flat side fixes neither); support_pressure and
@@ -671,7 +672,7 @@ support_concentration (the pressure distribution sets the frictional moment, c =
 f_max: rim-heavy +10-50 %, centre-heavy -30-80 %, which sets how far the off-centre pusher
 turns the block). Out: mass_scale and input_gain (u = 0 and the support force scales with
 the mass: the pusher's position, not a force, drives the block; neither changes the
-motion); friction_scale and support_friction (the filter estimates the pusher and the
+motion: their filter scores equal the nominal model's to 0.1 nats); friction_scale and support_friction (the filter estimates the pusher and the
 support coefficients over their candidates 0.1 / 0.25 / 0.4; a factor or a new support value
 is a different value of these estimated coefficients); friction_patch (no filter path)."""
 
