@@ -135,7 +135,7 @@ def test_merge_keeps_one_row_per_scenario_and_draw(tmp_path: Path) -> None:
 # fitted at 1.0 with 60 particles).
 SMALL: dict[str, tuple[int, int, tuple[str, ...]]] = {
     "gripper": (4, 80, ("viscous_damping",)),
-    "push": (4, 60, ("support_pressure",)),
+    "push": (3, 60, ("support_pressure",)),
 }
 
 
