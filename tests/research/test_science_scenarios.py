@@ -9,6 +9,7 @@ at random in a short gripper and push draw is found with its parameter (the benc
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -17,7 +18,8 @@ import numpy as np
 import pytest
 
 from dbcslam_core.contact_modes import Mode
-from dbcslam_core.discrepancy import DiscrepancyConfig, analyse
+from dbcslam_core.discrepancy import DiscrepancyConfig, Hypothesis, ParamSpace, analyse
+from dbcslam_core.discrepancy.fitting import fit_1d
 from dbcslam_core.errors import ModelError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.scenario import gripper_scenario
@@ -153,3 +155,23 @@ def test_hidden_effect_of_a_seeded_draw_is_found(name: str) -> None:
     )
     res = analyse([train], [held], cfg)
     assert recovered(res, ext, train.scenario), (ext, res.verdict, res.winner)
+
+
+@pytest.mark.parametrize(("offset", "walked"), [(1e-9, 2), (0.0, 2), (0.5, 4)])
+def test_a_parameter_without_effect_stops_the_walk(offset: float, walked: int) -> None:
+    """Scores equal to the start value to rounding on both sides of the first round (e.g.
+    input_gain on the push, u = 0; sensor bias x along the gripper's jaws): the walk stops
+    after that round; a parameter that moves the score is walked on (two misses per side)."""
+    sp = ParamSpace("factor", 0.4, 2.5, True, 1.0, (0.6, 0.8, 1.25, 1.6, 2.0))
+    seen: list[float] = []
+
+    def score(h: Hypothesis) -> float:
+        f = h.param_dict["factor"]
+        seen.append(f)
+        return 100.0 - offset * abs(math.log(f)) / math.log(1.25)
+
+    res = fit_1d(
+        lambda x: Hypothesis.make("input_gain", {"factor": x}), sp, score, (1.0, 100.0), 30.0
+    )
+    assert len(seen) == walked
+    assert res.x == 1.0 and not res.refined
