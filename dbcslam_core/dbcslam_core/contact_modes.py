@@ -27,10 +27,12 @@ __all__ = [
     "REDUCED_BACKENDS",
     "ContactLayout",
     "Hypotheses",
+    "LiveHypotheses",
     "Mode",
     "ReducedSolution",
     "ViolationScales",
     "enumerate_hypotheses",
+    "enumerate_live",
     "geometric_feasible",
     "solve_reduced",
     "sum_last",
@@ -645,7 +647,10 @@ def _solve_small(amat: FloatArray, rhs: FloatArray) -> FloatArray:
             raise SolverError(msg) from err
     if not np.isfinite(x).all():
         n_bad = int((~np.isfinite(x)).any(axis=(1, 2)).sum())
-        msg = f"reduced dynamics system is singular for {n_bad} of {amat.shape[0]} assignments"
+        msg = (
+            f"reduced dynamics system is singular or its solution overflows for {n_bad} of "
+            f"{amat.shape[0]} assignments"
+        )
         raise SolverError(msg)
     return np.asarray(x, dtype=np.float64)
 
@@ -868,6 +873,64 @@ class Hypotheses:
         return np.asarray(self.valid.sum(axis=1), dtype=np.int64)
 
 
+@dataclass(frozen=True)
+class LiveHypotheses:
+    """The valid joint hypotheses of `enumerate_live`, row after row (no padding): modes
+    (N, C), log_prior (N,), counts (P,) per particle (>= 1), width = the largest count (K of
+    the padded `Hypotheses` layout)."""
+
+    modes: IntArray
+    log_prior: FloatArray
+    counts: IntArray
+    width: int
+
+    @property
+    def n_live(self) -> IntArray:
+        """Live hypotheses per particle (P,)."""
+        return self.counts
+
+    def padded(self) -> Hypotheses:
+        """The same hypotheses in the padded (P, K) layout (empty slots: modes 0, log prior
+        -inf, not valid)."""
+        n_p = self.counts.shape[0]
+        valid = np.arange(self.width)[None, :] < self.counts[:, None]
+        modes = np.zeros((n_p, self.width, self.modes.shape[1]), dtype=np.int64)
+        modes[valid] = self.modes
+        logp = np.full((n_p, self.width), -np.inf)
+        logp[valid] = self.log_prior
+        return Hypotheses(modes=modes, log_prior=logp, valid=valid)
+
+
+def enumerate_live(
+    marginals: npt.ArrayLike,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None = None,
+    phi: npt.ArrayLike | None = None,
+    max_tuples: int = 4096,
+) -> LiveHypotheses:
+    """`enumerate_hypotheses` (same hypotheses, same order) as the list of the valid ones
+    (compiled without the padded arrays when numba is available)."""
+    mg = np.asarray(marginals, dtype=np.float64)
+    if not kernels.AVAILABLE:
+        hyp = enumerate_hypotheses(
+            mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
+        )
+        counts = hyp.n_live
+        return LiveHypotheses(
+            hyp.modes[hyp.valid], hyp.log_prior[hyp.valid], counts, int(hyp.modes.shape[1])
+        )
+    if mg.ndim != 3 or mg.shape[-1] != N_MODES:
+        msg = f"marginals must be (particles, contacts, {N_MODES}), got shape {mg.shape}"
+        raise SolverError(msg)
+    args, kwargs = _compiled_enumeration_args(
+        mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
+    )
+    modes, logp, counts, width = kernels.enumerate_compact(*args, **kwargs)
+    return LiveHypotheses(modes, logp, counts, width)
+
+
 def _radix(n_live_max: list[int], max_tuples: int) -> tuple[int, ...]:
     """Live modes per contact over all particles, reduced (largest first) until the number
     of joint tuples is at most max_tuples."""
@@ -895,6 +958,41 @@ def _layout_arrays(layout: ContactLayout) -> tuple[IntArray, IntArray, IntArray]
     return out
 
 
+def _compiled_enumeration_args(
+    mg: FloatArray,
+    threshold: float,
+    max_hypotheses: int,
+    *,
+    layout: ContactLayout | None,
+    phi: npt.ArrayLike | None,
+    max_tuples: int,
+) -> tuple[tuple[IntArray, FloatArray], dict[str, Any]]:
+    """The inputs of `kernels.enumerate_tuples` / `enumerate_compact` for marginals mg."""
+    n_p, n_c, _ = mg.shape
+    # (P, C, 4) modes by descending probability (stable, as the numpy path), their log
+    # probabilities (-inf where not live) and the live count per (particle, contact)
+    order, lsp, n_live = kernels.prepare_tuples(mg, threshold)
+    radix_t = _radix(n_live.max(axis=0).tolist(), max_tuples)
+    n_t = math.prod(radix_t)
+    pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
+    if layout is None:
+        empty = np.zeros((0, 2), dtype=np.int64)
+        rules = (np.zeros((0, 0), dtype=np.int64), empty, empty)
+    else:
+        rules = _layout_arrays(layout)
+    kwargs: dict[str, Any] = {
+        "n_live": n_live,
+        "threshold": threshold,
+        "ranks": _mixed_radix(radix_t),
+        "n_keep": min(max_hypotheses, pre_k),
+        "pre_k": pre_k,
+        "phi": None if (phi is None or layout is None) else np.asarray(phi, dtype=np.float64),
+        "rules": rules,
+        "both_tolerance": 2e-3,
+    }
+    return (order, lsp), kwargs
+
+
 def _enumerate_compiled(
     mg: FloatArray,
     threshold: float,
@@ -905,32 +1003,10 @@ def _enumerate_compiled(
     max_tuples: int,
 ) -> Hypotheses:
     """`enumerate_hypotheses` through `kernels.enumerate_tuples` (same rules)."""
-    n_p, n_c, _ = mg.shape
-    order = np.argsort(-mg, axis=-1, kind="stable")  # (P, C, 4), as the numpy path
-    sp = -np.sort(-mg, axis=-1)
-    live = sp >= threshold
-    live[..., 0] = True
-    with np.errstate(divide="ignore"):
-        lsp = np.where(live, np.log(sp), -np.inf)
-    radix_t = _radix(sum_last(live).max(axis=0).tolist(), max_tuples)
-    n_t = math.prod(radix_t)
-    pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)
-    if layout is None:
-        empty = np.zeros((0, 2), dtype=np.int64)
-        rules = (np.zeros((0, 0), dtype=np.int64), empty, empty)
-    else:
-        rules = _layout_arrays(layout)
-    modes, logp, valid = kernels.enumerate_tuples(
-        order,
-        lsp,
-        threshold=threshold,
-        ranks=_mixed_radix(radix_t),
-        n_keep=min(max_hypotheses, pre_k),
-        pre_k=pre_k,
-        phi=None if (phi is None or layout is None) else np.asarray(phi, dtype=np.float64),
-        rules=rules,
-        both_tolerance=2e-3,
+    args, kwargs = _compiled_enumeration_args(
+        mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
     )
+    modes, logp, valid = kernels.enumerate_tuples(*args, **kwargs)
     return Hypotheses(modes=modes, log_prior=logp, valid=valid)
 
 

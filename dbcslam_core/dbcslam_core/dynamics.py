@@ -46,7 +46,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
-from typing import Union
+from typing import Any, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -107,6 +107,22 @@ class StepResult:
     phi: F64
     mu: F64
     modes: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class _FlatStep:
+    """A batched step's inputs flattened to `n` rows (see `PlanarModel.step`): q, v, u
+    [n, nq]; env, env_next [n, E]; mu as given or [n, C]; mu_pair [n, P]; mus [n]."""
+
+    n: int
+    q: F64
+    v: F64
+    u: F64
+    env: F64
+    env_next: F64
+    mu: MuSpec | None
+    mu_pair: F64 | None
+    mus: F64
 
 
 def modes_from_lcp(
@@ -635,41 +651,73 @@ class PlanarModel:
             return r
         if self.support_iterations == 1:
             return r
-        # Fixed point v' = g(v_lin) of the re-linearisation, Anderson(1)-accelerated (secant
-        # on the residual g(x) - x), per batch element: converged elements drop out.
         lead = r.v.shape[:-1]
+        flat = self._flat_step(state, u, env, env_next, mu=mu, mu_pair=mu_pair, mus=mus, lead=lead)
+        out = self._relinearise(r, flat)
+        shaped = {k: val.reshape(*lead, -1) for k, val in out.items()}
+        shaped["modes"] = shaped["modes"].astype(np.int64)
+        return StepResult(**shaped)
+
+    def _flat_step(
+        self,
+        state: State,
+        u: ArrayLike,
+        env: ArrayLike | None,
+        env_next: ArrayLike | None,
+        *,
+        mu: MuSpec | None,
+        mu_pair: ArrayLike | None,
+        mus: F64,
+        lead: tuple[int, ...],
+    ) -> _FlatStep:
+        """The step's inputs broadcast to the batch shape `lead` and flattened to rows."""
         n = int(np.prod(lead))
-        nv, nc = self.nq, self.nc
 
         def flat(x: ArrayLike, width: int) -> F64:
             a = np.asarray(x, dtype=np.float64)
             return np.broadcast_to(a, (*lead, width)).reshape(n, width)
 
         n_env = len(self.scenario.joints)
-        q_f = flat(state.q, nv)
-        v_f = flat(state.v, nv)
-        u_f = flat(u, nv)
-        e0_f = flat(np.zeros(n_env) if env is None else env, n_env)
-        e1_f = e0_f if env_next is None else flat(env_next, n_env)
-        mp_f = None if mu_pair is None else flat(mu_pair, len(self.scenario.friction.pairs))
+        e0 = flat(np.zeros(n_env) if env is None else env, n_env)
         mu_f: MuSpec | None = mu
         if mu is not None and not callable(mu):
-            mu_f = flat(mu, nc)
-        mus_f = np.broadcast_to(mus, lead).reshape(n)
-        out = {f.name: np.array(getattr(r, f.name)).reshape(n, -1) for f in fields(StepResult)}
+            mu_f = flat(mu, self.nc)
+        return _FlatStep(
+            n=n,
+            q=flat(state.q, self.nq),
+            v=flat(state.v, self.nq),
+            u=flat(u, self.nq),
+            env=e0,
+            env_next=e0 if env_next is None else flat(env_next, n_env),
+            mu=mu_f,
+            mu_pair=None if mu_pair is None else flat(mu_pair, len(self.scenario.friction.pairs)),
+            mus=np.broadcast_to(mus, lead).reshape(n),
+        )
+
+    def _relinearise(self, first: StepResult, flat: _FlatStep) -> dict[str, NDArray[Any]]:
+        """Fixed point v' = g(v_lin) of the support-friction re-linearisation.
+
+        Anderson(1)-accelerated (secant on the residual g(x) - x), per batch row: converged
+        rows drop out. `first`: the step linearised at the start velocity. Returns each
+        row's last iterate, the `StepResult` fields as (rows, -1) arrays.
+        """
+        out = {
+            f.name: np.array(getattr(first, f.name)).reshape(flat.n, -1)
+            for f in fields(StepResult)
+        }
         g0 = out["v"].copy()
         x1 = g0.copy()
-        res0 = g0 - v_f
-        active = np.arange(n)
+        res0 = g0 - flat.v
+        active = np.arange(flat.n)
         for _ in range(self.support_iterations - 1):
             rs = self._step_once(
-                State(q_f[active], v_f[active]),
-                u_f[active],
-                e0_f[active],
-                e1_f[active],
-                mu=mu_f[active] if isinstance(mu_f, np.ndarray) else mu_f,
-                mu_pair=None if mp_f is None else mp_f[active],
-                mus=mus_f[active],
+                State(flat.q[active], flat.v[active]),
+                flat.u[active],
+                flat.env[active],
+                flat.env_next[active],
+                mu=flat.mu[active] if isinstance(flat.mu, np.ndarray) else flat.mu,
+                mu_pair=None if flat.mu_pair is None else flat.mu_pair[active],
+                mus=flat.mus[active],
                 v_lin=x1[active],
             )
             for f in fields(StepResult):
@@ -687,9 +735,7 @@ class PlanarModel:
             active = active[~done]
             if active.size == 0:
                 break
-        shaped = {k: val.reshape(*lead, -1) for k, val in out.items()}
-        shaped["modes"] = shaped["modes"].astype(np.int64)
-        return StepResult(**shaped)
+        return out
 
     def _step_once(
         self,

@@ -322,11 +322,68 @@ def run_filter(
 ) -> RunTrace:
     """Drive `filt` over trajectory `tr` (module-doc timing) and record a :class:`RunTrace`."""
     sc = tr.scenario
-    nq = sc.nq
-    std0 = np.full(nq, sc.noise.position)
-    if nq == 3:
+    _initialize(filt, tr)
+    run = _drive(filt, tr, progress)
+    kin = contact_kinematics(sc, tr.q[1:], tr.env[1:])
+    cands = tuple(float(c) for c in sc.friction.candidates[0])
+    map_edges, map_post, map_weight = _final_friction_map(run.last)
+    return RunTrace(
+        scenario=sc.kind,
+        seed=seed,
+        method=method,
+        particles=particles,
+        t=tr.t[1:],
+        true_q=tr.q[1:],
+        obs_q=tr.obs[1:],
+        est_q=run.est_q,
+        est_modes=run.est_modes,
+        true_modes=tr.modes[1:],
+        true_s=np.asarray(kin.s, dtype=np.float64),
+        friction_post=run.friction,
+        true_mu=tr.mu[1:],
+        candidates=cands,
+        true_friction_index=_true_friction_index(tr, cands),
+        live_hypotheses=run.live,
+        step_time=run.step_time,
+        noise_position=sc.noise.position,
+        noise_yaw=sc.noise.yaw,
+        map_edges=map_edges,
+        map_post=map_post,
+        map_weight=map_weight,
+        rough_intervals=(EDGE_ROUGH,) if sc.kind == "edge" else (),
+        edge_y=sc.edge_y if sc.kind == "edge" else None,
+        n_joint_modes=int(len(Mode) ** sc.n_contacts) if sc.kind == "gripper" else None,
+    )
+
+
+@dataclass(frozen=True)
+class _Driven:
+    """Per step k = 1..n-1 of a run: the estimate's pose, mode probabilities, friction
+    posterior of the first pair, live hypotheses and step wall time (s); the last estimate."""
+
+    est_q: F64
+    est_modes: F64
+    friction: F64
+    live: F64
+    step_time: F64
+    last: Any
+
+
+def _initialize(filt: FilterLike, tr: Trajectory) -> None:
+    """Initialise `filt` at the first observation with the scenario's noise as spread."""
+    sc = tr.scenario
+    std0 = np.full(sc.nq, sc.noise.position)
+    if sc.nq == 3:
         std0[2] = sc.noise.yaw
     filt.initialize(tr.obs[0], std0, joints=tr.env_obs[0])
+
+
+def _drive(
+    filt: FilterLike, tr: Trajectory, progress: Callable[[int, int], None] | None
+) -> _Driven:
+    """Step `filt` through samples 1..n-1 of `tr`, timing each ``step`` call alone."""
+    sc = tr.scenario
+    nq = sc.nq
     n = tr.n_steps
     est_q = np.zeros((n - 1, nq))
     est_modes = np.zeros((n - 1, sc.n_contacts, len(Mode)))
@@ -350,53 +407,27 @@ def run_filter(
         last = est
         if progress is not None:
             progress(k, n - 1)
-    kin = contact_kinematics(sc, tr.q[1:], tr.env[1:])
-    cands = tuple(float(c) for c in sc.friction.candidates[0])
+    return _Driven(est_q, est_modes, fric, live, times, last)
+
+
+def _true_friction_index(tr: Trajectory, cands: Sequence[float]) -> int:
+    """Index of the candidate nearest the true coefficient of the first pair (-1: unknown)."""
     mu_pair = np.asarray(tr.mu_pair, dtype=np.float64)
-    true_idx = -1
     if mu_pair.size and np.all(np.isfinite(mu_pair)):
-        true_idx = int(_nearest_index(mu_pair[:1], cands)[0])
-    map_edges = map_post = map_weight = None
+        return int(_nearest_index(mu_pair[:1], cands)[0])
+    return -1
+
+
+def _final_friction_map(last: Any) -> tuple[F64 | None, F64 | None, F64 | None]:
+    """Cell edges (m), P(candidate 0) per cell (NaN where never touched) and cell weights
+    of the first pair's friction map in the last estimate; all None without a map."""
     fmap = getattr(last, "friction_map", None)
-    if isinstance(fmap, FrictionMapView):
-        map_edges = np.asarray(
-            fmap.s_min + np.arange(fmap.n_cells + 1) * fmap.cell_size, dtype=np.float64
-        )
-        map_post = np.asarray(fmap.probs[0], dtype=np.float64)
-        untouched = ~fmap.touched(0)
-        map_post = map_post.copy()
-        map_post[untouched] = np.nan
-        map_weight = np.asarray(fmap.weight[0], dtype=np.float64)
-    n_joint = None
-    if sc.kind == "gripper":
-        n_joint = int(len(Mode) ** sc.n_contacts)
-    return RunTrace(
-        scenario=sc.kind,
-        seed=seed,
-        method=method,
-        particles=particles,
-        t=tr.t[1:],
-        true_q=tr.q[1:],
-        obs_q=tr.obs[1:],
-        est_q=est_q,
-        est_modes=est_modes,
-        true_modes=tr.modes[1:],
-        true_s=np.asarray(kin.s, dtype=np.float64),
-        friction_post=fric,
-        true_mu=tr.mu[1:],
-        candidates=cands,
-        true_friction_index=true_idx,
-        live_hypotheses=live,
-        step_time=times,
-        noise_position=sc.noise.position,
-        noise_yaw=sc.noise.yaw,
-        map_edges=map_edges,
-        map_post=map_post,
-        map_weight=map_weight,
-        rough_intervals=(EDGE_ROUGH,) if sc.kind == "edge" else (),
-        edge_y=sc.edge_y if sc.kind == "edge" else None,
-        n_joint_modes=n_joint,
-    )
+    if not isinstance(fmap, FrictionMapView):
+        return None, None, None
+    edges = np.asarray(fmap.s_min + np.arange(fmap.n_cells + 1) * fmap.cell_size, dtype=np.float64)
+    post = np.asarray(fmap.probs[0], dtype=np.float64).copy()
+    post[~fmap.touched(0)] = np.nan
+    return edges, post, np.asarray(fmap.weight[0], dtype=np.float64)
 
 
 def _filter_config(kind: str, particles: int, overrides: Mapping[str, Any]) -> FilterConfig:

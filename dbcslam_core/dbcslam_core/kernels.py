@@ -29,7 +29,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AVAILABLE", "enumerate_tuples", "gaussian_update", "reduced_dynamics"]
+__all__ = [
+    "AVAILABLE",
+    "enumerate_compact",
+    "enumerate_tuples",
+    "gaussian_update",
+    "prepare_tuples",
+    "reduced_dynamics",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -111,11 +118,10 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
     irs: FloatArray,
 ) -> int:
     """Fill the outputs of every lead element; returns the number of singular systems.
-
-    Why one function of ~200 lines: numba compiles one loop with all scratch arrays
-    allocated once; splitting it into calls that pass ten arrays each costs clarity, not
-    speed, but the steps are marked and mirror the numpy path of `solve_reduced`.
-    """
+    The steps are marked and mirror the numpy path of `solve_reduced`."""
+    # Long because: one fused loop with the scratch arrays allocated once keeps each
+    # element's temporaries in registers; its sibling `step_kernels._entry_kernel` (the same
+    # steps per live entry) split into inlined helpers measured 1.5x slower.
     n_g, n_c = md.shape
     nv = vf.shape[1]
     n_m = gi.shape[0]
@@ -545,13 +551,23 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     forbidden: IntArray,
     same: IntArray,
     both_tolerance: float,
+    n_live: IntArray,
     out_modes: IntArray,
     out_logp: FloatArray,
     out_valid: npt.NDArray[np.bool_],
+    compact: bool,
+    flat_modes: IntArray,
+    flat_logp: FloatArray,
+    counts: IntArray,
 ) -> int:
     """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
     n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
-    tuples are screened first, as there); returns the largest valid count."""
+    tuples are screened first, as there); returns the largest valid count. Only the tuples
+    whose digits are live (digit c < n_live[p, c], (P, C), at most the radix) are visited, in
+    tuple order: the others have log prior -inf and cannot be valid (the slots after the
+    visited tuples stay empty: modes 0, log prior -inf, not valid). compact: write only the
+    valid hypotheses, row after row, into flat_modes (>= N, C) and flat_logp, and their count
+    per particle into counts (P,), instead of the padded out_* arrays."""
     n_p, n_c, _ = lsp.shape
     n_t = ranks.shape[0]
     truncated = pre_k < n_t
@@ -562,60 +578,164 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     cand = np.empty(n_c, dtype=np.int64)
     e = np.empty(n_keep)
     k_used = 1
+    stride = np.ones(n_c, dtype=np.int64)  # C-order strides of the digit tuples
+    for c in range(n_c - 2, -1, -1):
+        stride[c] = stride[c + 1] * (ranks[n_t - 1, c + 1] + 1)
+    digit = np.zeros(n_c, dtype=np.int64)
+    offset = 0
     for p in range(n_p):
         n_pre = 0
         n_top = 0
-        for t in range(n_t):
-            lp = lsp[p, 0, ranks[t, 0]]
+        # only the tuples of live digits (the others have log prior -inf), in tuple order
+        for c in range(n_c):
+            digit[c] = 0
+        more = True
+        while more:
+            t = 0
+            for c in range(n_c):
+                t += digit[c] * stride[c]
+            lp = lsp[p, 0, digit[0]]
             for c in range(1, n_c):
-                lp += lsp[p, c, ranks[t, c]]
+                lp += lsp[p, c, digit[c]]
+            c = n_c - 1  # next tuple: odometer over digit[c] < n_live[p, c]
+            while c >= 0:
+                digit[c] += 1
+                if digit[c] < n_live[p, c]:
+                    break
+                digit[c] = 0
+                c -= 1
+            more = c >= 0
             if truncated:
                 n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
                 continue
-            for c in range(n_c):
-                cand[c] = order[p, c, ranks[t, c]]
-            if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
-                lp = -np.inf
+            if lp > -np.inf:  # (a tuple with a dead mode stays -inf: no check needed)
+                for c in range(n_c):
+                    cand[c] = order[p, c, ranks[t, c]]
+                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
+                    lp = -np.inf
             n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
         if truncated:
             for r in range(n_pre):
                 t = pre_i[r]
                 lp = pre_v[r]
-                for c in range(n_c):
-                    cand[c] = order[p, c, ranks[t, c]]
-                if not _feasible(cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance):
-                    lp = -np.inf
+                if lp > -np.inf:
+                    for c in range(n_c):
+                        cand[c] = order[p, c, ranks[t, c]]
+                    if not _feasible(
+                        cand, crowded, forbidden, same, phi[p], has_phi, both_tolerance
+                    ):
+                        lp = -np.inf
                 n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
-        m = top_v[0] if np.isfinite(top_v[0]) else 0.0
-        tot = 0.0
-        for k in range(n_top):
-            e[k] = np.exp(top_v[k] - m)
-            tot += e[k]
-        tot = max(tot, 1e-300)
-        n_valid = 0
-        for k in range(n_top):
-            t = top_i[k]
-            for c in range(n_c):
-                out_modes[p, k, c] = order[p, c, ranks[t, c]]
-            ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
-            out_valid[p, k] = ok
-            out_logp[p, k] = top_v[k] if ok else -np.inf
-            if ok:
-                n_valid += 1
+        n_valid, offset = _emit_row(
+            p, (top_v, top_i, e, n_top), order, ranks, threshold, compact,
+            (out_modes, out_logp, out_valid), (flat_modes, flat_logp, counts), offset,
+        )  # fmt: skip
         k_used = max(k_used, n_valid)
     return k_used
 
 
+def _emit_row(  # noqa: PLR0917 - numba helper (inlined): positional arrays
+    p: int,
+    top: tuple[FloatArray, IntArray, FloatArray, int],
+    order: IntArray,
+    ranks: IntArray,
+    threshold: float,
+    compact: bool,
+    padded: tuple[IntArray, FloatArray, npt.NDArray[np.bool_]],
+    flat: tuple[IntArray, FloatArray, IntArray],
+    offset: int,
+) -> tuple[int, int]:
+    """Particle p's kept tuples top = (log priors, tuple indices, scratch, count), sorted:
+    valid = the first, and those whose normalised probability is >= threshold; written to
+    the padded arrays (modes, log prior, valid) or, compact, the valid ones to flat = (modes,
+    log prior, counts) from row offset. Returns (valid count, next offset)."""
+    top_v, top_i, e, n_top = top
+    out_modes, out_logp, out_valid = padded
+    flat_modes, flat_logp, counts = flat
+    n_c = order.shape[1]
+    m = top_v[0] if np.isfinite(top_v[0]) else 0.0
+    tot = 0.0
+    for k in range(n_top):
+        e[k] = np.exp(top_v[k] - m) if top_v[k] > -np.inf else 0.0
+        tot += e[k]
+    tot = max(tot, 1e-300)
+    n_valid = 0
+    for k in range(n_top):
+        t = top_i[k]
+        ok = k == 0 or (np.isfinite(top_v[k]) and e[k] / tot >= threshold)
+        if compact:  # the valid ones (a prefix: sorted by log prior), rows in order
+            if ok:
+                for c in range(n_c):
+                    flat_modes[offset, c] = order[p, c, ranks[t, c]]
+                flat_logp[offset] = top_v[k]
+                offset += 1
+        else:
+            for c in range(n_c):
+                out_modes[p, k, c] = order[p, c, ranks[t, c]]
+            out_valid[p, k] = ok
+            out_logp[p, k] = top_v[k] if ok else -np.inf
+        if ok:
+            n_valid += 1
+    if compact:
+        counts[p] = n_valid
+    return n_valid, offset
+
+
+def _prepare_kernel(
+    mg: FloatArray, lg: FloatArray, threshold: float, order: IntArray, lsp: FloatArray
+) -> IntArray:
+    """Per (particle, contact): the modes by descending probability (a stable sort, as
+    np.argsort(-mg, kind="stable")) into order, their log probabilities lg (= log mg) in
+    that order into lsp (-inf where not live: below threshold, except the most probable);
+    returns the number of live modes (P, C)."""
+    n_p, n_c, n_m = mg.shape
+    n_live = np.empty((n_p, n_c), dtype=np.int64)
+    for p in range(n_p):
+        for c in range(n_c):
+            for i in range(n_m):  # rank of mode i: larger ones, then equal ones before it
+                v = mg[p, c, i]
+                rank = 0
+                for j in range(n_m):
+                    w = mg[p, c, j]
+                    rank += (w > v) or (w == v and j < i)
+                order[p, c, rank] = i
+            cnt = 0
+            for i in range(n_m):
+                k = order[p, c, i]
+                live = i == 0 or mg[p, c, k] >= threshold
+                lsp[p, c, i] = lg[p, c, k] if live else -np.inf
+                if live:
+                    cnt += 1
+            n_live[p, c] = cnt
+    return n_live
+
+
 if AVAILABLE:
+    _prepare_kernel = numba.njit(cache=True, nogil=True)(_prepare_kernel)
     _insert_desc = numba.njit(cache=True, nogil=True)(_insert_desc)
     _feasible = numba.njit(cache=True, nogil=True)(_feasible)
+    _emit_row = numba.njit(cache=True, nogil=True, inline="always")(_emit_row)
     _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
+
+
+def prepare_tuples(mg: FloatArray, threshold: float) -> tuple[IntArray, FloatArray, IntArray]:
+    """Modes per (particle, contact) of the marginals mg (P, C, 4) by descending probability
+    (stable): order (P, C, 4), their log probabilities lsp (P, C, 4) (-inf where not live:
+    below threshold, except the most probable) and the live count (P, C)."""
+    mga = np.ascontiguousarray(mg, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        lg = np.log(mga)
+    order = np.empty(mga.shape, dtype=np.int64)
+    lsp = np.empty(mga.shape)
+    n_live = _prepare_kernel(mga, lg, float(threshold), order, lsp)
+    return order, lsp, n_live
 
 
 def enumerate_tuples(
     order: IntArray,
     lsp: FloatArray,
     *,
+    n_live: IntArray,
     threshold: float,
     ranks: IntArray,
     n_keep: int,
@@ -626,7 +746,7 @@ def enumerate_tuples(
 ) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
     """Compiled `contact_modes.enumerate_hypotheses` core: order (P, C, 4) the modes of each
     contact by descending probability and lsp (P, C, 4) their log probabilities (-inf where
-    not live), in that order; ranks
+    not live), in that order; n_live (P, C) the live modes of each contact; ranks
     (T, C) the mixed-radix digit tuples, n_keep = min(max_hypotheses, pre_k) columns, phi
     (P, C) gaps or None, rules = (crowded (G, L) padded with -1, forbidden (F, 2), same
     feature (S, 2)). Returns modes (P, K, C), log prior (P, K), valid (P, K), K the largest
@@ -650,8 +770,61 @@ def enumerate_tuples(
         rules[1],
         rules[2],
         float(both_tolerance),
+        np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
         out_modes,
         out_logp,
         out_valid,
+        False,
+        np.zeros((0, n_c), dtype=np.int64),
+        np.zeros(0),
+        np.zeros(0, dtype=np.int64),
     )
     return out_modes[:, :k_used], out_logp[:, :k_used], out_valid[:, :k_used]
+
+
+def enumerate_compact(
+    order: IntArray,
+    lsp: FloatArray,
+    *,
+    n_live: IntArray,
+    threshold: float,
+    ranks: IntArray,
+    n_keep: int,
+    pre_k: int,
+    phi: FloatArray | None,
+    rules: tuple[IntArray, IntArray, IntArray],
+    both_tolerance: float,
+) -> tuple[IntArray, FloatArray, IntArray, int]:
+    """`enumerate_tuples` with the valid hypotheses only, row after row: modes (N, C), log
+    prior (N,), the count of each particle (P,) and K, the largest count (the width of the
+    padded layout). No padded (P, K, C) array is built."""
+    n_p, n_c, _ = lsp.shape
+    flat_modes = np.empty((n_p * n_keep, n_c), dtype=np.int64)
+    flat_logp = np.empty(n_p * n_keep)
+    counts = np.empty(n_p, dtype=np.int64)
+    has_phi = phi is not None
+    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
+    k_used = _enumerate_kernel(
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(lsp, dtype=np.float64),
+        float(threshold),
+        np.ascontiguousarray(ranks, dtype=np.int64),
+        int(n_keep),
+        int(pre_k),
+        ph,
+        has_phi,
+        rules[0],
+        rules[1],
+        rules[2],
+        float(both_tolerance),
+        np.minimum(n_live, ranks[-1] + 1),
+        np.zeros((0, n_keep, n_c), dtype=np.int64),
+        np.zeros((0, n_keep)),
+        np.zeros((0, n_keep), dtype=np.bool_),
+        True,
+        flat_modes,
+        flat_logp,
+        counts,
+    )
+    n = int(counts.sum())
+    return flat_modes[:n], flat_logp[:n], counts, int(k_used)

@@ -41,6 +41,7 @@ __all__ = [
     "ProposalTerms",
     "gaussian_log_density",
     "gaussian_proposal",
+    "observation_terms",
     "proposal_terms",
     "sample_gaussian_proposal",
     "sample_noise",
@@ -630,6 +631,22 @@ def _observation_terms(
     for a in (observed, s_diag, q_gain, q_std):
         a.setflags(write=False)
     return every, observed, s_diag, q_gain, q_std
+
+
+def observation_terms(
+    obs: LinearObservation | None, sigma_q: npt.ArrayLike, nq: int
+) -> tuple[bool, FloatArray, FloatArray, FloatArray]:
+    """The constant terms of `gaussian_proposal` for a reading obs (None: no reading) and the
+    position noise std sigma_q (nq,): whether every dim is observed in order, diag(sq^2 +
+    var) over the observed dims, and the position-noise posterior gain and std (nq,)
+    (read-only arrays)."""
+    sq = np.asarray(sigma_q, dtype=np.float64).reshape(nq)
+    if obs is None:
+        return False, np.zeros((0, 0)), np.zeros(nq), sq.copy()
+    every, _, s_diag, q_gain, q_std = _observation_terms(
+        np.asarray(obs.index, dtype=np.int64).tobytes(), obs.var.tobytes(), sq.tobytes(), nq
+    )
+    return every, s_diag, q_gain, q_std
 
 
 def sample_gaussian_proposal(

@@ -24,20 +24,21 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core import kernels
+from dbcslam_core import contact_modes, kernels, step_kernels
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
     Hypotheses,
+    LiveHypotheses,
     Mode,
     ReducedSolution,
     ViolationScales,
-    enumerate_hypotheses,
+    enumerate_live,
     solve_reduced,
     sum_last,
 )
 from dbcslam_core.dynamics import PlanarModel
-from dbcslam_core.errors import ModelError
+from dbcslam_core.errors import ModelError, SolverError
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.force_likelihood import force_log_likelihood
 from dbcslam_core.geometry import ContactKinematics, contact_coordinates, contact_kinematics
@@ -49,6 +50,7 @@ from dbcslam_core.observation import (
     PoseObservationModel,
     gaussian_log_density,
     gaussian_proposal,
+    observation_terms,
     sample_gaussian_proposal,
     wrap_angle,
 )
@@ -485,6 +487,7 @@ class DbcSlamFilter:
             impulse_floor=1e-3 * float(self.model.mass_diag[0]),
         )
         self._resampler = make_resampler(cfg.resampler)
+        self._work: dict[str, FloatArray] = {}  # reusable per-step buffers (step_kernels)
         prior = scenario.friction.prior
         self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
         self._initialised = False
@@ -596,6 +599,12 @@ class DbcSlamFilter:
             None if bool(np.all(self._contact_pair == pr)) else self._contact_pair == pr
             for pr in range(self.n_pairs)
         ]
+        # the same as a (pairs, C) mask, and each contact's obstacle group (0..n-1), for
+        # the compiled phases
+        self._pair_mask = self._contact_pair[None, :] == np.arange(self.n_pairs)[:, None]
+        self._group_index = np.unique(self._contact_obstacle, return_inverse=True)[1].astype(
+            np.int64
+        )
 
     def _empty_particles(self) -> ParticleSet:
         """The particle set before initialisation (all contacts separated, prior friction)."""
@@ -741,10 +750,14 @@ class DbcSlamFilter:
         inp = self._read_inputs(observation, inputs, force)
         free = self._free_motion(inp)
         pred = self._predict_modes(free)
-        ent = self._live_entries(pred, free)
-        dyn = self._hypothesis_dynamics(ent, free, inp)
-        prop = self._propose(ent, dyn, inp)
-        post = self._discrete_posterior(ent, dyn, prop)
+        hyp = self._enumerate(pred, free)
+        if self._compiled_ok(inp):  # phases 4-6 in one compiled pass per row
+            prop, post = self._compiled_phases(hyp, pred, free, inp)
+        else:  # the numpy reference
+            ent = self._live_entries(hyp.padded(), pred)
+            dyn = self._hypothesis_dynamics(ent, free, inp)
+            prop = self._propose(ent, dyn, inp)
+            post = self._discrete_posterior(ent, dyn, prop)
         incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
         self._update_beliefs(post)
         log_ml = self._reweight(incr, inp)
@@ -761,7 +774,7 @@ class DbcSlamFilter:
             marg_post=post.marg_post,
             fric_pair=post.fric_pair,
             ess=ess,
-            live=float(ent.hyp.n_live.mean()),
+            live=float(hyp.counts.mean()),
             log_ml=log_ml,
             resampled=resampled,
         )
@@ -844,6 +857,20 @@ class DbcSlamFilter:
         cfg = self.config
         ps = self.particles
         kin = free.kin
+        tp = cfg.transition
+        if (
+            step_kernels.AVAILABLE
+            and contact_modes.DEFAULT_BACKEND == "compiled"
+            and not (tp.edge_tolerance > 0.0 and self._edge_partners.size)
+        ):  # one compiled pass (same operations)
+            return step_kernels.predict_modes(
+                ps.modes,
+                kin.phi,
+                free.an,
+                free.at,
+                dt=self.dt,
+                params=(tp.gap_scale, tp.far_gap, tp.slip_scale, tp.slide_floor, tp.persistence),
+            )
         soft = soft_modes(kin.phi, free.an, free.at, self.dt, cfg.transition)
         if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
             prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
@@ -862,15 +889,19 @@ class DbcSlamFilter:
             dt=self.dt,
         )
 
-    def _live_entries(self, pred: FloatArray, free: _FreeMotion) -> _Entries:
-        """Joint mode hypotheses per particle, compacted from the padded (P, K) layout to the
-        N live entries, with their log prior per friction hypothesis (N, B)."""
+    def _enumerate(self, pred: FloatArray, free: _FreeMotion) -> LiveHypotheses:
+        """Joint mode hypotheses per row (the valid ones, row after row) from the predicted
+        marginals averaged over the friction belief."""
         cfg = self.config
-        n_p = self.particles.size
         marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
-        hyp = enumerate_hypotheses(
+        return enumerate_live(
             marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
         )
+
+    def _live_entries(self, hyp: Hypotheses, pred: FloatArray) -> _Entries:
+        """The joint mode hypotheses compacted from the padded (P, K) layout to the N live
+        entries, with their log prior per friction hypothesis (N, B)."""
+        n_p = self.particles.size
         n_k = hyp.modes.shape[1]
         pi, ki = np.nonzero(hyp.valid)
         slot = np.full((n_p, n_k), -1, dtype=np.int64)
@@ -912,17 +943,180 @@ class DbcSlamFilter:
         # Process noise is force noise: a perturbation e of the free velocity reaches v'
         # through the response map of the hypothesis (constrained directions are absorbed by
         # the contact impulses), plus a small isotropic part.
-        boost = 1.0
-        if cfg.warmup_steps > 0:
-            boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
-        sig2 = (self._sigma_v * boost) ** 2
+        sig2 = self._velocity_noise()
         if inp.force is not None and inp.force_obstacle is not None:
             log_alpha = log_alpha + self._force_log_likelihood(
-                inp.force, inp.force_obstacle, sol, free.kin.normal[ent.pi], sig2
+                inp.force,
+                inp.force_obstacle,
+                (sol.ln, sol.lt, sol.impulse_response),
+                free.kin.normal[ent.pi],
+                sig2,
             )
         resp = sol.response  # (N, B, nv, nv)
         cov_h = (resp * sig2) @ np.swapaxes(resp, -1, -2) + cfg.constrained_noise * np.diag(sig2)
         return _Dynamics(sol.v_next, log_alpha, cov_h)
+
+    def _velocity_noise(self) -> FloatArray:
+        """Velocity process-noise variances (nv,) of this step (inflated during warm-up)."""
+        cfg = self.config
+        boost = 1.0
+        if cfg.warmup_steps > 0:
+            boost += cfg.warmup_boost * max(0.0, 1.0 - (self._step - 1) / cfg.warmup_steps)
+        return np.asarray((self._sigma_v * boost) ** 2, dtype=np.float64)
+
+    def _compiled_ok(self, inp: _StepInputs) -> bool:
+        """Whether phases 4-6 can run compiled (`step_kernels`): numba present, the compiled
+        backend selected (`contact_modes.DEFAULT_BACKEND`), and a reading of every pose dim
+        (or none)."""
+        if not (step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled"):
+            return False
+        lin = inp.lin
+        return lin is None or (
+            lin.index.size == self.nq and bool(np.array_equal(lin.index, np.arange(self.nq)))
+        )
+
+    def _compiled_phases(
+        self, hyp: LiveHypotheses, pred: FloatArray, free: _FreeMotion, inp: _StepInputs
+    ) -> tuple[_Proposal, _Posterior]:
+        """Phases 4-6 (`_hypothesis_dynamics`, `_propose`, `_discrete_posterior`) through the
+        compiled kernels of `step_kernels`: the same equations per element, the same random
+        numbers in the same order, values equal to round-off."""
+        n_live = hyp.counts
+        starts = np.zeros(self.particles.size + 1, dtype=np.int64)
+        np.cumsum(n_live, out=starts[1:])
+        sig2 = self._velocity_noise()
+        out = self._compiled_dynamics(starts, hyp.modes, pred, free, inp=inp, sig2=sig2)
+        log_alpha = out["log_alpha"]
+        if inp.force is not None and inp.force_obstacle is not None:
+            pi = np.repeat(np.arange(self.particles.size), n_live)
+            log_alpha = log_alpha + self._force_log_likelihood(
+                inp.force,
+                inp.force_obstacle,
+                (out["ln"], out["lt"], out["impulse_response"]),
+                free.kin.normal[pi],
+                sig2,
+            )
+        res = self._compiled_proposal(starts, hyp, out, log_alpha, free=free, inp=inp)
+        pair_in = res["pair_in"]
+        if self._surface_pair is not None:
+            pair_in[:, self._surface_pair] = 1.0  # always on the support
+        marg_post = res["marg_post"]
+        fric_post = res["fric_post"]
+        fric_pair = (
+            self._pair_marginals(fric_post)
+            if self._n_sub == 1
+            else np.empty((0, self.n_pairs, self._k_max))
+        )
+        post = _Posterior(
+            fric_post,
+            fric_pair,
+            res["modes_post"],
+            marg_post,
+            pair_in,
+            1.0 - marg_post[:, :, Mode.SEPARATED],
+        )
+        return _Proposal(res["incr"], res["v_new"], res["q_new"]), post
+
+    def _compiled_dynamics(
+        self,
+        starts: IntArray,
+        modes_n: IntArray,
+        pred: FloatArray,
+        free: _FreeMotion,
+        *,
+        inp: _StepInputs,
+        sig2: FloatArray,
+    ) -> dict[str, Any]:
+        """Phase 4 compiled (`step_kernels.entry_dynamics`): per live entry (rows starts,
+        modes modes_n (N, C)) x friction the post-step velocity, impulses, noise covariance
+        and proposal weight log alpha (without a force reading)."""
+        cfg = self.config
+        ps = self.particles
+        kin = free.kin
+        prev_in = None
+        if cfg.gap_tolerance is not None:  # P(in contact) at the previous step, per row
+            prev_in = 1.0 - np.einsum("pb,pbc->pc", ps.fric, ps.modes[..., Mode.SEPARATED])
+        with np.errstate(divide="ignore"):
+            log_pred = np.log(pred)
+        out, n_bad = step_kernels.entry_dynamics(
+            starts,
+            modes_n,
+            jn=kin.Jn,
+            jt=kin.Jt,
+            phi=kin.phi,
+            vn_env=kin.vn_env,
+            vt_env=kin.vt_env,
+            v_free=free.v_free[:, None, :] if free.v_free_b is None else free.v_free_b,
+            inv_mass=self._inv_mass,
+            mass=free.m_eff,
+            mu=self._mu,
+            row_b=self._sub_b,
+            group=self._group_index,
+            prev_in=prev_in,
+            log_pred=log_pred,
+            fric=ps.fric,
+            sig2=sig2,
+            params=(
+                self.dt,
+                1e-10,  # eps_rel of `solve_reduced`
+                self._scales.impulse,
+                self._scales.velocity,
+                self._scales.impulse_floor,
+                cfg.gap_closure,
+                -1.0 if cfg.gap_tolerance is None else cfg.gap_tolerance,
+                cfg.constrained_noise,
+            ),
+            sensitivity=inp.force is not None,
+            work=self._work,
+        )
+        if n_bad or not np.isfinite(out["v_next"]).all():
+            msg = (
+                f"reduced dynamics system is singular for {max(n_bad, 1)} of "
+                f"{out['score'].size} assignments"
+            )
+            raise SolverError(msg)
+        return out
+
+    def _compiled_proposal(
+        self,
+        starts: IntArray,
+        hyp: LiveHypotheses,
+        out: dict[str, Any],
+        log_alpha: FloatArray,
+        *,
+        free: _FreeMotion,
+        inp: _StepInputs,
+    ) -> dict[str, FloatArray]:
+        """Phases 5-6 compiled (`step_kernels.propose_rows`), with the random numbers of the
+        numpy path in its order: Gumbel uniforms over the padded (K, F) layout (a bank's
+        copies share their particle's: `_shared_draws` without the repeat), then the normals
+        of v' and of the position noise."""
+        ps = self.particles
+        n_r = ps.size
+        uniforms = self.rng.random((n_r // self._n_sub, hyp.width * self.n_fb))
+        normals = self.rng.standard_normal if self._n_sub == 1 else self._shared_normals
+        z_v = normals((n_r, self.nq))
+        z_q = normals((n_r, self.nq))
+        lin = inp.lin
+        _, s_diag, q_gain, q_std = observation_terms(lin, self._sigma_q, self.nq)
+        return step_kernels.propose_rows(
+            starts,
+            hyp.modes,
+            q=ps.q,
+            v_h=out["v_next"],
+            cov=out["cov"],
+            log_alpha=log_alpha,
+            observation=None if lin is None else (lin.value, lin.angular, s_diag),
+            q_gain=q_gain,
+            q_std=q_std,
+            dt=self.dt,
+            shared=free.v_free_b is None and free.m_eff is None,
+            uniforms=uniforms,
+            copies=self._n_sub,
+            z_v=z_v,
+            z_q=z_q,
+            pair_mask=self._pair_mask,
+        )
 
     def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
         """Optimal proposal: per entry x friction the Gaussian posterior of v' given the
@@ -1210,25 +1404,26 @@ class DbcSlamFilter:
         self,
         force: ForceObservation,
         obstacle: int,
-        sol: ReducedSolution,
+        impulses: tuple[FloatArray, FloatArray, FloatArray | None],
         normal: FloatArray,
         sig2: FloatArray,
     ) -> FloatArray:
         """log-likelihood (N, B) of a force reading; see :mod:`dbcslam_core.force_likelihood`.
 
-        sol: the reduced solution (impulses (N, B, C) and their sensitivity to the free
-        velocity); normal (N, C, 2) contact normals (into the body, world frame); sig2 (nv,)
-        the velocity process-noise variances of the step.
+        impulses: (ln, lt) (N, B, C) of the reduced solutions and their sensitivity to the
+        free velocity (N, B, 2, C, nv) or None; normal (N, C, 2) contact normals (into the
+        body, world frame); sig2 (nv,) the velocity process-noise variances of the step.
         """
+        ln, lt, ir_all = impulses
         sel = self._contact_obstacle == obstacle
         std = self.config.force_noise if force.std is None else force.std
-        ir = None if sol.impulse_response is None else sol.impulse_response[..., sel, :]
+        ir = None if ir_all is None else ir_all[..., sel, :]
         return force_log_likelihood(
             (force.fx, force.fy),
             std,
             normal[:, None, sel, :],
-            sol.ln[..., sel],
-            sol.lt[..., sel],
+            ln[..., sel],
+            lt[..., sel],
             dt=self.dt,
             impulse_response=ir,
             sig2=sig2,
@@ -1314,8 +1509,21 @@ class DbcSlamFilter:
         history = self.particles.history
         if history.length == 0:
             return self.map.view()
-        obs = self._map_observations(history.entries(), w)
-        pending = [None if o is None else self.map.accumulate(*o) for o in obs]
+        pending: list[tuple[FloatArray, FloatArray] | None]
+        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+            fmap = self.map
+            pending = step_kernels.map_pending(
+                history.buf,
+                history.head,
+                history.length,
+                w,
+                pair_mask=self._pair_mask,
+                n_cand=np.asarray(self._n_cand, dtype=np.int64),
+                grid=(fmap.s_min, fmap.cell_size, fmap.n_cells),
+            )
+        else:
+            obs = self._map_observations(history.entries(), w)
+            pending = [None if o is None else self.map.accumulate(*o) for o in obs]
         return self.map.view(pending)
 
     def _estimate(

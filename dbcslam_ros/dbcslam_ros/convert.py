@@ -42,9 +42,11 @@ __all__ = [
     "estimate_messages",
     "float64_multiarray",
     "friction_map_grid",
+    "header_ns",
     "joints_from_msg",
     "ns_to_stamp",
     "planar_cov6",
+    "planar_pose",
     "pose_from_msg",
     "pose_stamped",
     "quaternion_to_yaw",
@@ -101,6 +103,11 @@ def stamp_to_ns(stamp: Any) -> int:
     return int(stamp.sec) * NS + int(stamp.nanosec)
 
 
+def header_ns(msg: Any) -> int:
+    """The ``header.stamp`` of a stamped message, in integer nanoseconds."""
+    return stamp_to_ns(msg.header.stamp)
+
+
 def ns_to_stamp(ns: int) -> Any:
     """Integer nanoseconds -> builtin_interfaces/Time (negative stamps are rejected)."""
     if ns < 0:
@@ -108,6 +115,14 @@ def ns_to_stamp(ns: int) -> Any:
         raise ValueError(msg)
     time_cls = rt.message_class("builtin_interfaces/msg/Time")
     return time_cls(sec=int(ns // NS), nanosec=int(ns % NS))
+
+
+def planar_pose(pose: Any) -> tuple[float, float, float]:
+    """geometry_msgs/Pose -> (x, y, yaw) (m, m, rad), as recorded: nothing validated (for
+    reading bags; inputs go through `pose_from_msg`)."""
+    o = pose.orientation
+    yaw = core_quaternion_to_yaw(o.x, o.y, o.z, o.w)
+    return (float(pose.position.x), float(pose.position.y), yaw)
 
 
 def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:

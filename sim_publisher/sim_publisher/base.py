@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from dbcslam_core.angles import wrap_angle
 from dbcslam_core.scenario import Scenario
 
 from .bullet import BulletClient
@@ -153,9 +154,7 @@ class Simulation(ABC):
                 truth = self._measure(cid, t)
                 pose = truth.pose.copy()
                 if prev_yaw is not None:  # unwrap yaw against the previous sample
-                    pose[2] = prev_yaw + float(
-                        np.mod(pose[2] - prev_yaw + np.pi, 2.0 * np.pi) - np.pi
-                    )
+                    pose[2] = prev_yaw + float(wrap_angle(pose[2] - prev_yaw))
                 prev_yaw = float(pose[2])
                 if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(truth.twist))):
                     msg = f"{self.name} simulation diverged at t = {t:.3f} s: pose {pose}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.cli.registry import Command, add_ros_args
 from dbcslam_ros.errors import UsageError
 
 __all__ = ["COMMAND"]
@@ -50,14 +50,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         default="pybullet",
         help="pybullet physics (default) or the core's synthetic trajectories",
     )
-    parser.add_argument(
-        "--ros-args",
-        dest="ros_args",
-        nargs=argparse.REMAINDER,
-        default=[],
-        metavar="ARG",
-        help="ROS arguments passed to the node (-p NAME:=VALUE ...); must come last",
-    )
+    add_ros_args(parser)
 
 
 def _run(args: argparse.Namespace) -> int:

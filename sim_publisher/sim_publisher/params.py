@@ -28,6 +28,8 @@ from typing import Any
 
 import yaml
 
+from dbcslam_core.polygon import polygon_area, polygon_centroid
+
 from .errors import ParamError
 
 __all__ = [
@@ -278,24 +280,6 @@ def _check_candidates(cands: tuple[float, ...], prior: tuple[float, ...]) -> Non
         raise _fail(f"parameter 'friction_prior' = {list(prior)} must be >= 0 and sum to 1")
 
 
-def _polygon_area_centroid(
-    verts: tuple[tuple[float, float], ...],
-) -> tuple[float, float, float]:
-    a = cx = cy = 0.0
-    n = len(verts)
-    for i in range(n):
-        x0, y0 = verts[i]
-        x1, y1 = verts[(i + 1) % n]
-        cr = x0 * y1 - x1 * y0
-        a += cr
-        cx += (x0 + x1) * cr
-        cy += (y0 + y1) * cr
-    a *= 0.5
-    if a == 0.0:
-        return 0.0, 0.0, 0.0
-    return a, cx / (6.0 * a), cy / (6.0 * a)
-
-
 @dataclass(frozen=True)
 class GripperParams(SimParams):
     """Triangle between two parallel jaws (paper Fig. 4): horizontal table, gravity -z.
@@ -346,12 +330,13 @@ class GripperParams(SimParams):
         _check_range("mass", self.mass, 0.0, 1.0e3, lo_open=True)
         if len(self.vertices) < 3:
             raise _fail(f"parameter 'vertices' needs >= 3 points, got {list(self.vertices)}")
-        area, cx, cy = _polygon_area_centroid(self.vertices)
+        area = polygon_area(self.vertices)
         if area <= 0.0:
             raise _fail(
                 f"parameter 'vertices' must be counter-clockwise with positive area, got area "
                 f"{area:.3g} m^2 for {list(self.vertices)}"
             )
+        cx, cy = polygon_centroid(self.vertices)
         size = max(math.hypot(x, y) for x, y in self.vertices)
         if math.hypot(cx, cy) > 1e-9 + 1e-6 * size:
             raise _fail(

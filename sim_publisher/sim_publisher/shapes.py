@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dbcslam_core.mass_properties import STAINLESS_STEEL_DENSITY
-from dbcslam_core.polygon import convex_hull
+from dbcslam_core.polygon import convex_hull, polygon_area, polygon_centroid, polygon_inertia
 from dbcslam_ros.importers.mitpush import SHAPES as DATASET_SHAPES
 from dbcslam_ros.importers.mitpush import ShapeFacts
 
@@ -48,24 +48,6 @@ class Outline:
     area: float
     mass: float
     inertia: float
-
-
-def _area_centroid(v: NDArray[np.float64]) -> tuple[float, float, float]:
-    x, y = v[:, 0], v[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cr = x * yn - xn * y
-    a = 0.5 * float(np.sum(cr))
-    cx = float(np.sum((x + xn) * cr)) / (6.0 * a)
-    cy = float(np.sum((y + yn) * cr)) / (6.0 * a)
-    return a, cx, cy
-
-
-def _polar_inertia(v: NDArray[np.float64], mass: float) -> float:
-    x, y = v[:, 0], v[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cr = x * yn - xn * y
-    num = float(np.sum(cr * (x * x + x * xn + xn * xn + y * y + y * yn + yn * yn)))
-    return mass * num / (6.0 * float(np.sum(cr)))
 
 
 def load_outline(
@@ -101,7 +83,8 @@ def load_outline(
     if len(hull) < 3:
         msg = f"outline file {path} is degenerate (fewer than 3 hull vertices)"
         raise ParamError(msg)
-    area, cx, cy = _area_centroid(hull)
+    area = polygon_area(hull)  # > 0: the hull is counter-clockwise and not degenerate
+    cx, cy = polygon_centroid(hull)
     verts = hull - np.array([cx, cy])
     info = SHAPES.get(shape)
     m = mass if mass is not None else (info.mass if info else STEEL_DENSITY * area * thickness)
@@ -110,5 +93,5 @@ def load_outline(
     elif info is not None and mass is None:
         izz = info.inertia
     else:
-        izz = _polar_inertia(verts, m)
+        izz = polygon_inertia(verts, m)
     return Outline(path.stem.removesuffix("_ext"), verts, (cx, cy), area, float(m), float(izz))

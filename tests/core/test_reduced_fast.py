@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from reduced_reference import solve_reduced_reference
 
@@ -246,11 +246,24 @@ def test_solve_small_matches_linalg_solve(k: int) -> None:
     | st.lists(st.floats(-1e-170, 1e-170), min_size=4, max_size=4),
     rhs=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
 )
+# well conditioned but subnormal: x[0] = 1 / 2.23e-309 = 4.5e308 exceeds the largest double
+# (found by hypothesis; np.linalg.solve gives inf as well): not a solvable system in float64
+@example(entries=[0.0, 1.11e-308, 2.23e-309, 0.0], rhs=[0.0, 1.0])
+@example(entries=[0.0, 1.11e-308, 2.23e-309, 0.0], rhs=[0.0, 1e-300])  # solvable: 4.5e8
 def test_cramer_2x2_is_accurate(entries: list[float], rhs: list[float]) -> None:
     a = np.asarray(entries).reshape(1, 2, 2)
     b = np.asarray(rhs).reshape(1, 2, 1)
     cond = np.linalg.cond(a[0])
     if not np.isfinite(cond) or cond > 1e8:
+        return
+    # reference: both sides scaled by a power of two (exact; LAPACK's pivots of subnormal
+    # matrices would overflow)
+    e = int(np.frexp(np.abs(a).max())[1])
+    with np.errstate(all="ignore"):
+        reference = np.linalg.solve(np.ldexp(a, -e), np.ldexp(b, -e))
+    if not np.isfinite(reference).all():  # the solution is not representable in float64
+        with pytest.raises(SolverError, match="overflows"), np.errstate(all="ignore"):
+            _solve_small(a, b)
         return
     x = _solve_small(a, b)
     scale = np.abs(b).max() + np.abs(a).max() * np.abs(x).max()

@@ -46,3 +46,28 @@ def test_top_level_is_the_required_one() -> None:
     assert dirs <= TOP_LEVEL, f"unexpected top-level folders: {sorted(dirs - TOP_LEVEL)}"
     rows = {p.rstrip("/") for p in _layout_paths()}
     assert {d for d in TOP_LEVEL if d != "dbcslam_ros"} <= rows
+
+
+def test_the_tests_row_names_every_test_folder() -> None:
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    row = next(line for line in text.splitlines() if line.startswith("| `tests/` |"))
+    named = set(re.findall(r"`(tests/[a-z_]+)`", row))
+    folders = {
+        f"tests/{p.name}"
+        for p in (REPO / "tests").iterdir()
+        if p.is_dir() and any(p.glob("test_*.py"))
+    }
+    assert named == folders, f"tests row names {sorted(named)}, the tree has {sorted(folders)}"
+
+
+def test_design_names_every_core_module() -> None:
+    """dbcslam_core/DESIGN.md's module map has a row for every module and subpackage."""
+    core = REPO / "dbcslam_core" / "dbcslam_core"
+    text = (REPO / "dbcslam_core" / "DESIGN.md").read_text(encoding="utf-8")
+    rows = set(re.findall(r"^\| `([^`]+)` \|", text, flags=re.M))
+    wanted = {p.name for p in core.glob("*.py") if p.name != "__init__.py"}
+    wanted |= {f"{p.name}/" for p in core.iterdir() if (p / "__init__.py").exists()}
+    missing = sorted(wanted - rows)
+    assert not missing, f"DESIGN.md's module map has no row for {missing}"
+    stale = sorted(r for r in rows if r.endswith((".py", "/")) and r not in wanted)
+    assert not stale, f"DESIGN.md names modules that do not exist: {stale}"

@@ -26,23 +26,14 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from dbcslam_ros.contract import DIAGNOSTICS, JOINT_STATES, OUTPUT_TOPICS, SCENARIO
+from dbcslam_ros.contract import OBJECT_POSE as POSE
+from dbcslam_ros.contract import OBJECT_WRENCH as WRENCH
+from dbcslam_ros.contract import PUSHER_WRENCH as PUSHER
 from dbcslam_ros.network import apply_loopback_defaults
 
-POSE, WRENCH, JOINTS, PUSHER, SCENARIO = (
-    "/object/pose",
-    "/object/wrench",
-    "/joint_states",
-    "/pusher/wrench",
-    "/scenario",
-)
-OUTPUTS = (
-    "/dbcslam/pose",
-    "/dbcslam/odometry",
-    "/dbcslam/contact_modes",
-    "/dbcslam/friction",
-    "/dbcslam/friction_map",
-    "/dbcslam/markers",
-)
+JOINTS = JOINT_STATES
+OUTPUTS = tuple(t for t in OUTPUT_TOPICS if t != DIAGNOSTICS)
 
 HOSTILE_SCENARIOS = (
     "scenario: [unclosed",

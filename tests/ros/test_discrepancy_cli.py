@@ -18,7 +18,7 @@ from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.synthetic import Trajectory, edge_sweep_trajectory
 from dbcslam_ros.bag import BagWriter, open_bag
 from dbcslam_ros.cli import main as cli_main
-from dbcslam_ros.node.filter_node import load_extensions
+from dbcslam_ros.node.params import load_extensions
 from dbcslam_ros.offline.discrepancy_report import load_run
 from dbcslam_ros.offline.replay import write_trajectory_bag
 

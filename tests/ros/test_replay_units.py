@@ -15,6 +15,7 @@ from dbcslam_core import metrics as core_metrics
 from dbcslam_core.synthetic import edge_trajectory, gripper_trajectory
 from dbcslam_ros.bag import BagWriter, open_bag
 from dbcslam_ros.cli import main as cli_main
+from dbcslam_ros.contract import DIAGNOSTICS, OUTPUT_TOPICS
 from dbcslam_ros.errors import BagError, UsageError
 from dbcslam_ros.offline.replay import (
     ReplayOptions,
@@ -24,14 +25,7 @@ from dbcslam_ros.offline.replay import (
     write_trajectory_bag,
 )
 
-OUTPUTS = (
-    "/dbcslam/pose",
-    "/dbcslam/odometry",
-    "/dbcslam/contact_modes",
-    "/dbcslam/friction",
-    "/dbcslam/friction_map",
-    "/dbcslam/markers",
-)
+OUTPUTS = tuple(t for t in OUTPUT_TOPICS if t != DIAGNOSTICS)
 
 
 @pytest.fixture(scope="module")

@@ -19,11 +19,30 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 
-__all__ = ["COMMANDS_PACKAGE", "ENTRY_POINT_GROUP", "Command", "discover_commands"]
+__all__ = [
+    "COMMANDS_PACKAGE",
+    "ENTRY_POINT_GROUP",
+    "Command",
+    "add_ros_args",
+    "discover_commands",
+]
 
 COMMANDS_PACKAGE = "dbcslam_ros.cli.commands"
 #: Entry-point group through which other installed packages add ``dbcslam`` subcommands.
 ENTRY_POINT_GROUP = "dbcslam.commands"
+
+
+def add_ros_args(parser: argparse.ArgumentParser) -> None:
+    """The ``--ros-args ...`` pass-through of a command that runs a node (``args.ros_args``:
+    the ROS arguments, ``-p NAME:=VALUE ...``; must come last)."""
+    parser.add_argument(
+        "--ros-args",
+        dest="ros_args",
+        nargs=argparse.REMAINDER,
+        default=[],
+        metavar="ARG",
+        help="ROS arguments passed to the node (-p NAME:=VALUE ...); must come last",
+    )
 
 
 @dataclass(frozen=True)

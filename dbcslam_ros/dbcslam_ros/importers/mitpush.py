@@ -87,7 +87,7 @@ from dbcslam_core.mass_properties import (
     PlateProperties,
     plate_properties,
 )
-from dbcslam_core.polygon import convex_hull
+from dbcslam_core.polygon import convex_hull, polygon_area, polygon_centroid
 from dbcslam_core.scenario import PUSH_MODELS
 from dbcslam_ros.errors import BagError
 
@@ -395,16 +395,6 @@ def find_shapes_dir(h5_path: str | Path) -> Path | None:
     return None
 
 
-def _area_centroid(v: FloatArray) -> tuple[float, float, float]:
-    x, y = v[:, 0], v[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cr = x * yn - xn * y
-    area = 0.5 * float(np.sum(cr))
-    cx = float(np.sum((x + xn) * cr)) / (6.0 * area)
-    cy = float(np.sum((y + yn) * cr)) / (6.0 * area)
-    return area, cx, cy
-
-
 def load_outline(shape: str, shapes_dir: str | Path, mirrored: bool = True) -> Outline:
     """Load ``<shapes_dir>/<shape>_ext.npy`` and express it in the body frame.
 
@@ -442,10 +432,11 @@ def outline_from_vertices(shape: str, file_vertices: FloatArray, mirrored: bool)
     """
     v = np.asarray(file_vertices, dtype=np.float64)
     body = v * np.array([-1.0, 1.0]) if mirrored else v.copy()
-    area, cx, cy = _area_centroid(body)
+    area = polygon_area(body)
     if not abs(area) > 0.0:
         msg = f"outline of shape {shape!r} is degenerate (zero area)"
         raise MitPushError(msg)
+    cx, cy = polygon_centroid(body)
     hull = convex_hull(body)
     if len(hull) < 3:
         msg = f"outline of shape {shape!r} is degenerate (fewer than 3 hull vertices)"

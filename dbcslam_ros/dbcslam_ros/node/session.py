@@ -264,6 +264,7 @@ class FilterSession:
         self._dropped_since_step = False
         self._outliers_in_row = 0
         self._exceed_in_row = 0
+        self._pending: tuple[PoseReading, float] | None = None  # offer_pose / process_pending
         self.warm_up_s = self._warm_up()  # before the first pose, not in its step
 
     # -- inputs ---------------------------------------------------------------------------
@@ -298,6 +299,31 @@ class FilterSession:
         self.rejected["backlog"] += 1
         self.backlog_dropped += 1
         self._dropped_since_step = True
+
+    # -- the pose queue (depth one) -----------------------------------------------------
+    def offer_pose(self, reading: PoseReading, received: float = 0.0) -> None:
+        """Queue a pose for :meth:`process_pending` (``received``: its arrival time, s, for
+        the caller's latency). Depth one: a newer pose drops an unprocessed one (counted
+        ``backlog``, the next step catches up). The stamp is screened first against the newest
+        pose used or queued (:meth:`screen_pose`): raises InputRejected (counted) for a stamp
+        that would displace a good pose."""
+        stamps = [self.last_pose_ns]
+        if self._pending is not None:
+            stamps.append(self.correct(self._pending[0]).stamp_ns)
+        newest = max((s for s in stamps if s is not None), default=None)
+        self.screen_pose(reading, newest)
+        if self._pending is not None:
+            self.note_backlog_drop()
+        self._pending = (reading, received)
+
+    def process_pending(self) -> tuple[PoseOutcome, float] | None:
+        """Process the queued pose (:meth:`process_pose`): its outcome and arrival time, or
+        None when no pose is queued."""
+        if self._pending is None:
+            return None
+        reading, received = self._pending
+        self._pending = None
+        return self.process_pose(reading), received
 
     def process_pose(self, reading: PoseReading) -> PoseOutcome:
         """The whole handling of one pose: gate, catch-up, filter steps, statistics, resets
@@ -541,6 +567,35 @@ class FilterSession:
         return self._joints.values[-1] if self._joints.values else ()
 
     # -- control --------------------------------------------------------------------------
+    def statistics(self) -> dict[str, str]:
+        """The session's part of the filter's ``/diagnostics`` values (counters since start;
+        step times in ms over the last :data:`WINDOW` estimates; keys documented in
+        :meth:`dbcslam_ros.node.filter_node.FilterCore.diagnostics_values`)."""
+        values = {
+            "particles": str(self.config.particles),
+            "rejected_total": str(sum(self.rejected.values())),
+        }
+        for reason, count in sorted(self.rejected.items()):
+            values[f"rejected_{reason}"] = str(count)
+        values["resets"] = str(self.resets)
+        values["filter_steps"] = str(self.steps)
+        values["skipped_steps"] = str(self.skipped_steps)
+        values["gap_steps"] = str(self.gap_steps)
+        values["force_steps"] = str(self.force_steps)
+        if self.last_estimate is not None:
+            est = self.last_estimate.estimate
+            values["ess"] = f"{est.ess:.1f}"
+            values["live_hypotheses"] = f"{est.live_hypotheses:.2f}"
+        if self.step_times:
+            times = np.asarray(self.step_times) * 1e3
+            per_step = times / np.asarray(self.model_steps, dtype=np.float64)
+            values["step_time_ms_mean"] = f"{times.mean():.3f}"
+            values["step_time_ms_p95"] = f"{np.percentile(times, 95):.3f}"
+            values["step_time_ms_max"] = f"{times.max():.3f}"
+            values["model_step_time_ms_mean"] = f"{per_step.mean():.3f}"
+            values["model_step_time_ms_p95"] = f"{np.percentile(per_step, 95):.3f}"
+        return values
+
     def reset(self, keep_until_ns: int | None = None) -> None:
         """Forget the filter state (new particles from the next pose); counters survive.
 

@@ -28,7 +28,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,7 +36,7 @@ from typing import IO, Any
 
 from dbcslam_ros.contract import DIAGNOSTICS, OBJECT_POSE, POSE, SCENARIO
 from dbcslam_ros.errors import DbcSlamRosError, UsageError
-from dbcslam_ros.node.filter_node import LIVE_PARTICLES
+from dbcslam_ros.node.params import LIVE_PARTICLES
 
 __all__ = ["DEFAULT_PARTICLES", "SCENARIOS", "DemoError", "DemoOptions", "DemoResult", "run_demo"]
 
@@ -194,106 +194,32 @@ def run_demo(opts: DemoOptions) -> DemoResult:
         DemoError: a process failed to start or the run produced no estimates.
     """
     _check(opts)
-    bag = opts.out if opts.out is not None else default_bag_path(opts.scenario)
-    if bag.exists():
-        msg = f"{bag}: already exists; choose another --out"
-        raise UsageError(msg)
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    out = opts.progress
+    bag = _new_bag_dir(opts)
     particles = opts.particles or DEFAULT_PARTICLES[opts.scenario]
     seed = 0 if opts.seed is None else opts.seed
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
     started = time.monotonic()
+    say = _sayer(opts.progress)
     children: list[_Child] = []
-
-    def say(text: str) -> None:
-        if out is not None:
-            out.write(text + "\n")
-            out.flush()
-
     codes: dict[str, int | None] = {}
     try:
-        recorder = _Child("record", _cli("record", "-o", str(bag), "--contract"), env)
-        children.append(recorder)
+        recorder = _start(children, "record", _cli("record", "-o", str(bag), "--contract"), env)
         _wait(
             recorder,
             "its subscriptions",
             lambda: recorder.saw("recording /object/pose"),
             opts.startup_timeout_s,
         )
-        filt = _Child(
-            "filter",
-            _cli(
-                "filter",
-                "--ros-args",
-                "-p",
-                f"particles:={particles}",
-                "-p",
-                f"seed:={seed}",
-                "-p",
-                f"marker_particles:={DEMO_MARKER_PARTICLES if opts.markers else 0}",
-                "-p",
-                "marker_period:=0.0",  # one marker message per estimate in the recording
-            ),
-            env,
-        )
-        children.append(filt)
-        _wait(
-            recorder,
-            "the filter's first /diagnostics",
-            lambda: recorder.counts.get(DIAGNOSTICS, 0) > 0 or filt.proc.poll() is not None,
-            opts.startup_timeout_s,
-        )
-        if filt.proc.poll() is not None:
-            msg = f"the filter exited (code {filt.proc.returncode}) at start-up:\n{filt.tail()}"
-            raise DemoError(msg)
-        sim_args = ["sim", "--scenario", opts.scenario, "--engine", opts.engine]
-        sim_args += ["--seed", str(seed)]
-        if opts.duration is not None:
-            sim_args += ["--duration", repr(float(opts.duration))]
-        if opts.rate is not None:
-            sim_args += ["--rate", repr(float(opts.rate))]
-        sim = _Child("sim", _cli(*sim_args), env)
-        children.append(sim)
+        filt = _start(children, "filter", _filter_argv(opts, particles, seed), env)
+        _wait_for_filter(recorder, filt, opts.startup_timeout_s)
+        sim = _start(children, "sim", _sim_argv(opts, seed), env)
         say(
             f"demo: scenario {opts.scenario} ({opts.engine}), {particles} particles, "
             f"recording to {bag}"
         )
-        rate = opts.rate or 100.0
-        sim_started = time.monotonic()
-        while sim.proc.poll() is None:
-            recorder.updated.wait(0.25)
-            recorder.updated.clear()
-            c = recorder.counts
-            if out is not None:
-                out.write(
-                    f"\rsim time {c.get('/object/pose', 0) / rate:6.2f} s, "
-                    f"{c.get('/dbcslam/pose', 0)} estimates, "
-                    f"wall {time.monotonic() - sim_started:5.1f} s"
-                )
-                out.flush()
-            if time.monotonic() - sim_started > 600:
-                msg = "the simulator did not finish within 600 s"
-                raise DemoError(msg)
-        codes["sim"] = sim.proc.returncode
-        if out is not None:
-            out.write("\n")
-        if sim.proc.returncode != 0:
-            msg = f"the simulator failed (exit code {sim.proc.returncode}):\n{sim.tail()}"
-            raise DemoError(msg)
-        # Drain: wait until the estimate count stops growing (recorder reports once a second).
-        last = -1
-        quiet_since = time.monotonic()
-        deadline = time.monotonic() + 30.0
-        while time.monotonic() < deadline:
-            n = recorder.counts.get(POSE, 0)
-            if n != last:
-                last, quiet_since = n, time.monotonic()
-            elif time.monotonic() - quiet_since >= max(opts.drain_s, 1.1):
-                break
-            recorder.updated.wait(0.2)
-            recorder.updated.clear()
+        codes["sim"] = _follow_sim(sim, recorder, opts)
+        _drain(recorder, opts.drain_s)
         codes["filter"] = filt.stop(10.0)
         codes["record"] = recorder.stop(15.0)
         if recorder.counts.get(POSE, 0) == 0 and not _has_estimates(bag):
@@ -304,6 +230,121 @@ def run_demo(opts: DemoOptions) -> DemoResult:
             if child.proc.poll() is None:
                 codes.setdefault(child.name, child.stop(5.0))
     return _summarise(bag, opts, codes, started, say)
+
+
+def _new_bag_dir(opts: DemoOptions) -> Path:
+    """The bag path to record to (its parent created); it must not exist yet."""
+    bag = opts.out if opts.out is not None else default_bag_path(opts.scenario)
+    if bag.exists():
+        msg = f"{bag}: already exists; choose another --out"
+        raise UsageError(msg)
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    return bag
+
+
+def _sayer(out: IO[str] | None) -> Callable[[str], None]:
+    """A function that writes one line to ``out`` (nothing when None)."""
+
+    def say(text: str) -> None:
+        if out is not None:
+            out.write(text + "\n")
+            out.flush()
+
+    return say
+
+
+def _start(children: list[_Child], name: str, argv: Sequence[str], env: dict[str, str]) -> _Child:
+    """Start a child process and add it to ``children`` (those the demo stops at the end)."""
+    child = _Child(name, argv, env)
+    children.append(child)
+    return child
+
+
+def _filter_argv(opts: DemoOptions, particles: int, seed: int) -> list[str]:
+    """``dbcslam filter`` with the demo's particles, seed and markers as ROS parameters."""
+    return _cli(
+        "filter",
+        "--ros-args",
+        "-p",
+        f"particles:={particles}",
+        "-p",
+        f"seed:={seed}",
+        "-p",
+        f"marker_particles:={DEMO_MARKER_PARTICLES if opts.markers else 0}",
+        "-p",
+        "marker_period:=0.0",  # one marker message per estimate in the recording
+    )
+
+
+def _wait_for_filter(recorder: _Child, filt: _Child, timeout_s: float) -> None:
+    """Until the recorder has the filter's first /diagnostics (the node is up and matched)."""
+    _wait(
+        recorder,
+        "the filter's first /diagnostics",
+        lambda: recorder.counts.get(DIAGNOSTICS, 0) > 0 or filt.proc.poll() is not None,
+        timeout_s,
+    )
+    if filt.proc.poll() is not None:
+        msg = f"the filter exited (code {filt.proc.returncode}) at start-up:\n{filt.tail()}"
+        raise DemoError(msg)
+
+
+def _sim_argv(opts: DemoOptions, seed: int) -> list[str]:
+    """``dbcslam sim`` for the demo's scenario, engine, seed and (if set) duration and rate."""
+    sim_args = ["sim", "--scenario", opts.scenario, "--engine", opts.engine]
+    sim_args += ["--seed", str(seed)]
+    if opts.duration is not None:
+        sim_args += ["--duration", repr(float(opts.duration))]
+    if opts.rate is not None:
+        sim_args += ["--rate", repr(float(opts.rate))]
+    return _cli(*sim_args)
+
+
+def _follow_sim(sim: _Child, recorder: _Child, opts: DemoOptions) -> int | None:
+    """Show the progress line until the simulator exits; returns its exit code (0).
+
+    Raises:
+        DemoError: the simulator failed, or did not finish within 600 s.
+    """
+    out = opts.progress
+    rate = opts.rate or 100.0
+    sim_started = time.monotonic()
+    while sim.proc.poll() is None:
+        recorder.updated.wait(0.25)
+        recorder.updated.clear()
+        c = recorder.counts
+        if out is not None:
+            out.write(
+                f"\rsim time {c.get('/object/pose', 0) / rate:6.2f} s, "
+                f"{c.get('/dbcslam/pose', 0)} estimates, "
+                f"wall {time.monotonic() - sim_started:5.1f} s"
+            )
+            out.flush()
+        if time.monotonic() - sim_started > 600:
+            msg = "the simulator did not finish within 600 s"
+            raise DemoError(msg)
+    if out is not None:
+        out.write("\n")
+    if sim.proc.returncode != 0:
+        msg = f"the simulator failed (exit code {sim.proc.returncode}):\n{sim.tail()}"
+        raise DemoError(msg)
+    return sim.proc.returncode
+
+
+def _drain(recorder: _Child, drain_s: float) -> None:
+    """Wait (at most 30 s) until the estimate count stops growing for ``drain_s`` (>= 1.1 s:
+    the recorder reports its counts once a second)."""
+    last = -1
+    quiet_since = time.monotonic()
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:
+        n = recorder.counts.get(POSE, 0)
+        if n != last:
+            last, quiet_since = n, time.monotonic()
+        elif time.monotonic() - quiet_since >= max(drain_s, 1.1):
+            break
+        recorder.updated.wait(0.2)
+        recorder.updated.clear()
 
 
 def _has_estimates(bag: Path) -> bool:
@@ -318,7 +359,7 @@ def _summarise(
     opts: DemoOptions,
     codes: dict[str, int | None],
     started: float,
-    say: Any,
+    say: Callable[[str], None],
 ) -> DemoResult:
     from dbcslam_ros.offline.evaluate import (
         evaluate_bag,

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.discrepancy import Analysis, DiscrepancyConfig, Run, analyse
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros.bag import find_bags, open_bag
 from dbcslam_ros.contract import JOINT_STATES, OBJECT_POSE, OBJECT_WRENCH, SCENARIO
+from dbcslam_ros.convert import header_ns, planar_pose
 from dbcslam_ros.errors import BagError, UsageError
 
 __all__ = ["filter_tracking", "load_run", "run_discrepancy", "write_report"]
@@ -36,14 +36,6 @@ __all__ = ["filter_tracking", "load_run", "run_discrepancy", "write_report"]
 F64 = NDArray[np.float64]
 NS = 1_000_000_000
 INPUT_TOPICS = (SCENARIO, OBJECT_POSE, OBJECT_WRENCH, JOINT_STATES)
-
-
-def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def _yaw(q: Any) -> float:
-    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
 
 
 def load_run(path: str | Path) -> Run:
@@ -64,24 +56,16 @@ def load_run(path: str | Path) -> Run:
                         problem = f"{p}: /scenario does not parse: {err}"
                         raise BagError(problem) from err
                 elif raw.topic == OBJECT_POSE:
-                    pz = msg.pose
-                    poses.append(
-                        (
-                            _stamp(msg.header),
-                            float(pz.position.x),
-                            float(pz.position.y),
-                            _yaw(pz.orientation),
-                        )
-                    )
+                    poses.append((header_ns(msg), *planar_pose(msg.pose)))
                 elif raw.topic == OBJECT_WRENCH:
                     w = msg.wrench
                     wrenches.append(
-                        (_stamp(msg.header), float(w.force.x), float(w.force.y), float(w.torque.z))
+                        (header_ns(msg), float(w.force.x), float(w.force.y), float(w.torque.z))
                     )
                 elif raw.topic == JOINT_STATES:
                     names = [str(n) for n in msg.name]
                     pos = [float(x) for x in msg.position]
-                    joints.append((_stamp(msg.header), dict(zip(names, pos, strict=False))))
+                    joints.append((header_ns(msg), dict(zip(names, pos, strict=False))))
     except BagError:
         raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
@@ -232,7 +216,7 @@ def filter_tracking(
     ``rmse_vs_observations`` (``gain_basis`` names which). The truth topics are read here
     only, never by the analysis itself.
     """
-    from dbcslam_ros.node.filter_node import load_extensions
+    from dbcslam_ros.node.params import load_extensions
     from dbcslam_ros.node.session import observation_correction
     from dbcslam_ros.offline.evaluate import load_bag_arrays, match_stamps
     from dbcslam_ros.offline.replay import ReplayOptions, replay_bag
@@ -321,7 +305,20 @@ def _fmt(x: float | None, scale: float = 1.0, nd: int = 3) -> str:
 
 
 def _markdown(result: Analysis, data: dict[str, Any], figs: Sequence[Path]) -> str:
-    r = result.residuals
+    """The human report: verdict, then numbered sections, then the figures."""
+    lines = [
+        *_evidence_section(result),
+        *_candidates_section(result),
+        *_extended_section(result, data),
+        *_rollouts_section(result),
+        *_tracking_section(data.get("filter_tracking")),
+        *(f"![{f.stem}]({f.name})" for f in figs),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _evidence_section(result: Analysis) -> list[str]:
+    """Title, verdict and section 1: held-out evidence of the nominal and extended models."""
     st = result.settings
     lines = [
         "# Model discrepancy report",
@@ -351,7 +348,12 @@ def _markdown(result: Analysis, data: dict[str, Any], figs: Sequence[Path]) -> s
             f"| {result.verdict} | {result.extended.loglik:.1f} | "
             f"{_fmt(result.extended.pred_rmse, 1e3)} | {_fmt(result.extended.track_rmse, 1e3)} |"
         )
-    lines += [
+    return lines
+
+
+def _candidates_section(result: Analysis) -> list[str]:
+    """Section 2: one table row per candidate effect."""
+    lines = [
         "",
         "## 2. Candidate effects (fitted on the training data, scored held out)",
         "",
@@ -367,7 +369,12 @@ def _markdown(result: Analysis, data: dict[str, Any], figs: Sequence[Path]) -> s
             f"{_fmt(c.delta_loglik, nd=1)} | {c.penalty:.1f} | {_fmt(c.heldout_rmse, 1e3)} | "
             f"{'yes' if c.clear else 'no'} | {c.note} |"
         )
-    lines += [
+    return lines
+
+
+def _extended_section(result: Analysis, data: dict[str, Any]) -> list[str]:
+    """Section 3: the model file written and the gains of the extended model."""
+    return [
         "",
         "## 3. Extended model and gain",
         "",
@@ -379,48 +386,56 @@ def _markdown(result: Analysis, data: dict[str, Any], figs: Sequence[Path]) -> s
         f"{result.tracking_gain:.3f}.",
         "",
     ]
-    if r:
-        lines += [
-            "## 4. Pictures: open-loop rollouts of the nominal model",
-            "",
-            f"Rollouts of {result.settings.get('rollout_horizon_steps')} steps "
-            f"({r['horizon_s']} s) from the filter's posterior means (friction: prior mean of "
-            "the candidates); not evidence, a picture of what goes wrong.",
-            "",
-            "| quantity | value |",
-            "|---|---|",
-            f"| one-step bias (x, y[, yaw]) | {r['bias_one_step']} |",
-            f"| bias at the horizon | {r['bias_horizon']} |",
-            f"| position RMSE by horizon (first, last) | {r['rmse_by_horizon'][0]:.6f}, "
-            f"{r['rmse_by_horizon'][-1]:.6f} m |",
-            f"| corr(residual, velocity) | {r['corr_velocity']} |",
-            f"| RMSE in contact / free | {r['rmse_in_contact']} / {r['rmse_free']} m |",
-            "",
+
+
+def _rollouts_section(result: Analysis) -> list[str]:
+    """Section 4 (when the analysis has residuals): open-loop rollouts of the nominal model."""
+    r = result.residuals
+    if not r:
+        return []
+    return [
+        "## 4. Pictures: open-loop rollouts of the nominal model",
+        "",
+        f"Rollouts of {result.settings.get('rollout_horizon_steps')} steps "
+        f"({r['horizon_s']} s) from the filter's posterior means (friction: prior mean of "
+        "the candidates); not evidence, a picture of what goes wrong.",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+        f"| one-step bias (x, y[, yaw]) | {r['bias_one_step']} |",
+        f"| bias at the horizon | {r['bias_horizon']} |",
+        f"| position RMSE by horizon (first, last) | {r['rmse_by_horizon'][0]:.6f}, "
+        f"{r['rmse_by_horizon'][-1]:.6f} m |",
+        f"| corr(residual, velocity) | {r['corr_velocity']} |",
+        f"| RMSE in contact / free | {r['rmse_in_contact']} / {r['rmse_free']} m |",
+        "",
+    ]
+
+
+def _tracking_section(track: dict[str, Any] | None) -> list[str]:
+    """The filter's tracking RMSE with and without the model file (when measured)."""
+    if not track:
+        return []
+    lines = [
+        f"Filter tracking ({track['particles']} particles, `dbcslam replay` with and "
+        "without the model file, position RMSE in m):",
+        "",
+        "| model | vs observations (sensor frame) | vs truth (state) | vs truth (sensor) |",
+        "|---|---|---|---|",
+    ]
+    for label in ("nominal", "extended"):
+        e = track.get(label, {})
+        cells = [
+            f"{e[k]:.6f}" if k in e else "-"
+            for k in ("rmse_vs_observations", "rmse_vs_truth_state", "rmse_vs_truth_sensor")
         ]
-    track = data.get("filter_tracking")
-    if track:
-        lines += [
-            f"Filter tracking ({track['particles']} particles, `dbcslam replay` with and "
-            "without the model file, position RMSE in m):",
-            "",
-            "| model | vs observations (sensor frame) | vs truth (state) | vs truth (sensor) |",
-            "|---|---|---|---|",
-        ]
-        for label in ("nominal", "extended"):
-            e = track.get(label, {})
-            cells = [
-                f"{e[k]:.6f}" if k in e else "-"
-                for k in ("rmse_vs_observations", "rmse_vs_truth_state", "rmse_vs_truth_sensor")
-            ]
-            lines.append(f"| {label} | {' | '.join(cells)} |")
-        lines += [
-            "",
-            f"Tracking gain ({track['gain_basis']}): {track['gain']:.3f}.",
-            "",
-        ]
-    for f in figs:
-        lines.append(f"![{f.stem}]({f.name})")
-    return "\n".join(lines) + "\n"
+        lines.append(f"| {label} | {' | '.join(cells)} |")
+    lines += [
+        "",
+        f"Tracking gain ({track['gain_basis']}): {track['gain']:.3f}.",
+        "",
+    ]
+    return lines
 
 
 def _figures(result: Analysis, stem: Path) -> list[Path]:

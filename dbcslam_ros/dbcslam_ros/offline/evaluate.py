@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dbcslam_core.angles import quaternion_to_yaw
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
@@ -74,6 +73,7 @@ from dbcslam_ros.contract import (
     TRUTH_POSE,
     TRUTH_TOPICS,
 )
+from dbcslam_ros.convert import header_ns, planar_pose
 from dbcslam_ros.errors import BagError
 
 __all__ = [
@@ -94,6 +94,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 NS = 1_000_000_000
+_Planar = tuple[float, float, float]
 
 #: Measured (not simulated) contact flag and pusher force topics.
 FLAG_TOPIC = PUSHER_CONTACT
@@ -186,18 +187,6 @@ class BagArrays:
         return min(firsts) if firsts else 0
 
 
-def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def _yaw(q: Any) -> float:
-    return quaternion_to_yaw(q.x, q.y, q.z, q.w)
-
-
-def _planar(pose: Any) -> tuple[float, float, float]:
-    return (float(pose.position.x), float(pose.position.y), _yaw(pose.orientation))
-
-
 def _array(msg: Any) -> FloatArray:
     dims = [int(d.size) for d in msg.layout.dim]
     data = np.asarray(msg.data, dtype=np.float64).reshape(-1)
@@ -251,124 +240,197 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
     Raises:
         BagError: the bag cannot be read, or its /scenario is invalid.
     """
-    p = Path(path)
-    out = BagArrays(path=p)
-    est: list[tuple[int, tuple[float, float, float], FloatArray]] = []
-    est_log: list[tuple[int, int]] = []
-    truth: list[tuple[int, tuple[float, float, float]]] = []
-    truth_log: list[tuple[int, int]] = []
-    modes: list[tuple[int, FloatArray]] = []
-    friction: list[tuple[int, FloatArray]] = []
-    tmodes: list[tuple[int, FloatArray]] = []
-    tfriction: list[tuple[int, FloatArray]] = []
-    obs: list[tuple[int, tuple[float, float, float]]] = []
-    flags: list[tuple[int, FloatArray]] = []
-    forces: list[tuple[int, tuple[float, float, float]]] = []
-    joints: list[tuple[int, dict[str, float]]] = []
-    with open_bag(p, salvage=salvage) as reader:
-        out.counts = reader.counts()
-        for raw, msg in reader.decoded(t for t in _READ_TOPICS if out.counts.get(t)):
-            topic = raw.topic
-            lt = raw.log_time_ns
-            if topic == POSE:
-                stamp = _stamp(msg.header)
-                cov6 = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)
-                idx = np.ix_((0, 1, 5), (0, 1, 5))
-                est.append((stamp, _planar(msg.pose.pose), cov6[idx]))
-                est_log.append((lt, stamp))
-            elif topic == CONTACT_MODES:
-                modes.append((lt, _array(msg)))
-            elif topic == FRICTION:
-                friction.append((lt, _array(msg)))
-            elif topic == FRICTION_MAP:
-                info = msg.info
-                data = np.asarray(msg.data, dtype=np.float64).reshape(
-                    int(info.height), int(info.width)
-                )
-                out.friction_map = FrictionGrid(
-                    s_min=float(info.origin.position.x),
-                    cell=float(info.resolution),
-                    p_high=np.where(data < 0, np.nan, data / 100.0),
-                )
-            elif topic == TRUTH_POSE:
-                stamp = _stamp(msg.header)
-                truth.append((stamp, _planar(msg.pose)))
-                truth_log.append((lt, stamp))
-            elif topic == TRUTH_CONTACT_MODES:
-                tmodes.append((lt, _array(msg)))
-            elif topic == TRUTH_FRICTION:
-                tfriction.append((lt, _array(msg)))
-            elif topic == FLAG_TOPIC:
-                flags.append((lt, _array(msg)))
-            elif topic == PUSHER_WRENCH_TOPIC:
-                w = msg.wrench
-                forces.append(
-                    (_stamp(msg.header), (float(w.force.x), float(w.force.y), float(w.torque.z)))
-                )
-            elif topic == JOINT_STATES:
-                joints.append(
-                    (
-                        _stamp(msg.header),
-                        dict(zip(msg.name, (float(v) for v in msg.position), strict=False)),
-                    )
-                )
-            elif topic == OBJECT_POSE:
-                obs.append((_stamp(msg.header), _planar(msg.pose)))
-            elif topic == DIAGNOSTICS:
-                values: dict[str, str] = {}
-                for status in msg.status:
-                    values.update({str(kv.key): str(kv.value) for kv in status.values})
-                out.diagnostics.append((_stamp(msg.header), values))
-            elif topic == SCENARIO and out.scenario is None:
-                try:
-                    out.scenario = Scenario.from_yaml(str(msg.data))
-                except (DbcSlamError, ValueError, TypeError, KeyError) as err:
-                    problem = f"{p}: /scenario does not parse: {err}"
-                    raise BagError(problem) from err
-    if est:
-        out.est_t = np.asarray([e[0] for e in est], dtype=np.int64)
-        out.est_pose = np.asarray([e[1] for e in est], dtype=np.float64)
-        out.est_cov = np.stack([e[2] for e in est])
-        for name, items in (("modes", modes), ("friction", friction)):
-            t, vals = _align(items, est_log, len(est))
-            shape = vals[-1].shape if vals else ()
-            arr = _by_stamp(out.est_t, t, vals, shape)
-            if arr is not None and name == "modes" and arr.ndim == 2:
-                arr = arr[:, None, :]
-            if arr is not None and name == "friction" and arr.ndim == 2:
-                arr = arr[:, None, :]
-            setattr(out, name, arr)
-    if truth:
-        out.truth_t = np.asarray([s for s, _ in truth], dtype=np.int64)
-        out.truth_pose = np.asarray([v for _, v in truth], dtype=np.float64)
-        t, vals = _align(tmodes, truth_log, len(truth))
-        arr = _by_stamp(out.truth_t, t, vals, vals[-1].shape if vals else ())
-        if arr is not None:
-            if arr.ndim == 2:
-                arr = arr[:, None, :]
-            out.truth_modes = np.argmax(arr, axis=-1).astype(np.int64)
-        t, vals = _align(tfriction, truth_log, len(truth))
-        arr = _by_stamp(out.truth_t, t, vals, vals[-1].shape if vals else ())
-        if arr is not None:
-            out.truth_friction = arr.reshape(arr.shape[0], -1)
+    msgs = _read_messages(Path(path), salvage=salvage)
+    out = BagArrays(
+        path=msgs.path,
+        scenario=msgs.scenario,
+        friction_map=msgs.friction_map,
+        diagnostics=msgs.diagnostics,
+        counts=msgs.counts,
+    )
+    _set_estimates(out, msgs)
+    _set_truth(out, msgs)
+    _set_observations(out, msgs.obs)
+    _set_contact_flag(out, msgs.flags)
+    _set_joints(out, msgs.joints)
+    _set_forces(out, msgs.forces)
+    return out
+
+
+@dataclass
+class _Messages:
+    """The messages of one bag as read, before they are stamped and stacked.
+
+    Stamped topics keep (header stamp, value); unstamped arrays (log time, value), and the
+    stamped topics they belong to also (log time, stamp) in log order (``*_log``).
+    """
+
+    path: Path
+    counts: dict[str, int] = field(default_factory=dict)
+    scenario: Scenario | None = None
+    friction_map: FrictionGrid | None = None
+    diagnostics: list[tuple[int, dict[str, str]]] = field(default_factory=list)
+    est: list[tuple[int, _Planar, FloatArray]] = field(default_factory=list)
+    est_log: list[tuple[int, int]] = field(default_factory=list)
+    modes: list[tuple[int, FloatArray]] = field(default_factory=list)
+    friction: list[tuple[int, FloatArray]] = field(default_factory=list)
+    truth: list[tuple[int, _Planar]] = field(default_factory=list)
+    truth_log: list[tuple[int, int]] = field(default_factory=list)
+    tmodes: list[tuple[int, FloatArray]] = field(default_factory=list)
+    tfriction: list[tuple[int, FloatArray]] = field(default_factory=list)
+    obs: list[tuple[int, _Planar]] = field(default_factory=list)
+    flags: list[tuple[int, FloatArray]] = field(default_factory=list)
+    forces: list[tuple[int, _Planar]] = field(default_factory=list)
+    joints: list[tuple[int, dict[str, float]]] = field(default_factory=list)
+
+    def add(self, topic: str, lt: int, msg: Any) -> None:
+        """Keep one decoded message of ``topic`` logged at ``lt`` (ns)."""
+        if topic == POSE:
+            stamp = header_ns(msg)
+            self.est.append((stamp, planar_pose(msg.pose.pose), _planar_cov(msg.pose.covariance)))
+            self.est_log.append((lt, stamp))
+        elif topic == CONTACT_MODES:
+            self.modes.append((lt, _array(msg)))
+        elif topic == FRICTION:
+            self.friction.append((lt, _array(msg)))
+        elif topic == FRICTION_MAP:
+            self.friction_map = _friction_grid(msg)
+        elif topic == TRUTH_POSE:
+            stamp = header_ns(msg)
+            self.truth.append((stamp, planar_pose(msg.pose)))
+            self.truth_log.append((lt, stamp))
+        elif topic == TRUTH_CONTACT_MODES:
+            self.tmodes.append((lt, _array(msg)))
+        elif topic == TRUTH_FRICTION:
+            self.tfriction.append((lt, _array(msg)))
+        elif topic == FLAG_TOPIC:
+            self.flags.append((lt, _array(msg)))
+        elif topic == PUSHER_WRENCH_TOPIC:
+            w = msg.wrench
+            self.forces.append(
+                (header_ns(msg), (float(w.force.x), float(w.force.y), float(w.torque.z)))
+            )
+        elif topic == JOINT_STATES:
+            positions = dict(zip(msg.name, (float(v) for v in msg.position), strict=False))
+            self.joints.append((header_ns(msg), positions))
+        elif topic == OBJECT_POSE:
+            self.obs.append((header_ns(msg), planar_pose(msg.pose)))
+        elif topic == DIAGNOSTICS:
+            values: dict[str, str] = {}
+            for status in msg.status:
+                values.update({str(kv.key): str(kv.value) for kv in status.values})
+            self.diagnostics.append((header_ns(msg), values))
+        elif topic == SCENARIO and self.scenario is None:
+            try:
+                self.scenario = Scenario.from_yaml(str(msg.data))
+            except (DbcSlamError, ValueError, TypeError, KeyError) as err:
+                problem = f"{self.path}: /scenario does not parse: {err}"
+                raise BagError(problem) from err
+
+
+def _read_messages(path: Path, *, salvage: bool) -> _Messages:
+    """Every message of the topics :func:`load_bag_arrays` reads, in log order."""
+    msgs = _Messages(path=path)
+    with open_bag(path, salvage=salvage) as reader:
+        msgs.counts = reader.counts()
+        for raw, msg in reader.decoded(t for t in _READ_TOPICS if msgs.counts.get(t)):
+            msgs.add(raw.topic, raw.log_time_ns, msg)
+    return msgs
+
+
+def _planar_cov(covariance: Any) -> FloatArray:
+    """The (x, y, yaw) block of a row-major 6x6 pose covariance."""
+    cov6 = np.asarray(covariance, dtype=np.float64).reshape(6, 6)
+    return cov6[np.ix_((0, 1, 5), (0, 1, 5))]
+
+
+def _friction_grid(msg: Any) -> FrictionGrid:
+    """A ``/dbcslam/friction_map`` OccupancyGrid (percent, -1 unknown) as a FrictionGrid."""
+    info = msg.info
+    data = np.asarray(msg.data, dtype=np.float64).reshape(int(info.height), int(info.width))
+    return FrictionGrid(
+        s_min=float(info.origin.position.x),
+        cell=float(info.resolution),
+        p_high=np.where(data < 0, np.nan, data / 100.0),
+    )
+
+
+def _aligned(
+    items: list[tuple[int, FloatArray]], log: list[tuple[int, int]], stamps: IntArray
+) -> FloatArray | None:
+    """Unstamped arrays stamped by :func:`_align` and re-indexed onto ``stamps``
+    (:func:`_by_stamp`, the shape of the last one); None if any stamp lacks one."""
+    t, vals = _align(items, log, len(log))
+    return _by_stamp(stamps, t, vals, vals[-1].shape if vals else ())
+
+
+def _one_row_each(arr: FloatArray) -> FloatArray:
+    """(T, K) arrays of a single contact or pair (recorded flat) as (T, 1, K)."""
+    return arr[:, None, :] if arr.ndim == 2 else arr
+
+
+def _set_estimates(out: BagArrays, msgs: _Messages) -> None:
+    """Estimated poses and covariances, and the mode and friction arrays at their stamps."""
+    if not msgs.est:
+        return
+    out.est_t = np.asarray([e[0] for e in msgs.est], dtype=np.int64)
+    out.est_pose = np.asarray([e[1] for e in msgs.est], dtype=np.float64)
+    out.est_cov = np.stack([e[2] for e in msgs.est])
+    modes = _aligned(msgs.modes, msgs.est_log, out.est_t)
+    friction = _aligned(msgs.friction, msgs.est_log, out.est_t)
+    # One contact / pair recorded as a flat (4,) / (K,) array: add its axis.
+    out.modes = modes[:, None, :] if modes is not None and modes.ndim == 2 else modes
+    out.friction = (
+        friction[:, None, :] if friction is not None and friction.ndim == 2 else friction
+    )
+
+
+def _set_truth(out: BagArrays, msgs: _Messages) -> None:
+    """True poses, and the true modes (argmax) and friction coefficients at their stamps."""
+    if not msgs.truth:
+        return
+    out.truth_t = np.asarray([s for s, _ in msgs.truth], dtype=np.int64)
+    out.truth_pose = np.asarray([v for _, v in msgs.truth], dtype=np.float64)
+    modes = _aligned(msgs.tmodes, msgs.truth_log, out.truth_t)
+    if modes is not None:
+        out.truth_modes = np.argmax(_one_row_each(modes), axis=-1).astype(np.int64)
+    friction = _aligned(msgs.tfriction, msgs.truth_log, out.truth_t)
+    if friction is not None:
+        out.truth_friction = friction.reshape(friction.shape[0], -1)
+
+
+def _set_observations(out: BagArrays, obs: list[tuple[int, _Planar]]) -> None:
+    """The observed poses (``/object/pose``)."""
     if obs:
         out.obs_t = np.asarray([s for s, _ in obs], dtype=np.int64)
         out.obs_pose = np.asarray([v for _, v in obs], dtype=np.float64)
-    if flags:
-        shape = flags[-1][1].shape
-        kept = [(lt, a) for lt, a in flags if a.shape == shape and a.ndim == 2 and shape[1] >= 1]
-        if kept:
-            out.flag_t = np.asarray([lt for lt, _ in kept], dtype=np.int64)
-            out.flag = np.stack([1.0 - a[:, 0] > 0.5 for _, a in kept])
+
+
+def _set_contact_flag(out: BagArrays, flags: list[tuple[int, FloatArray]]) -> None:
+    """The measured "in contact" flag of each contact, from the messages shaped as the last."""
+    if not flags:
+        return
+    shape = flags[-1][1].shape
+    kept = [(lt, a) for lt, a in flags if a.shape == shape and a.ndim == 2 and shape[1] >= 1]
+    if kept:
+        out.flag_t = np.asarray([lt for lt, _ in kept], dtype=np.int64)
+        out.flag = np.stack([1.0 - a[:, 0] > 0.5 for _, a in kept])
+
+
+def _set_joints(out: BagArrays, joints: list[tuple[int, dict[str, float]]]) -> None:
+    """Joint positions in the scenario's joint order, from the messages naming them all."""
     names = list(out.scenario.joints) if out.scenario is not None else []
     full = [(t, [j[n] for n in names]) for t, j in joints if names and all(n in j for n in names)]
     if full:
         out.joint_t = np.asarray([t for t, _ in full], dtype=np.int64)
         out.joints = np.asarray([v for _, v in full], dtype=np.float64)
+
+
+def _set_forces(out: BagArrays, forces: list[tuple[int, _Planar]]) -> None:
+    """The pusher's planar wrench [fx, fy, tau_z] (``/pusher/wrench``)."""
     if forces:
         out.force_t = np.asarray([s for s, _ in forces], dtype=np.int64)
         out.force = np.asarray([v for _, v in forces], dtype=np.float64)
-    return out
 
 
 def match_stamps(a: IntArray, b: IntArray, tol_ns: int) -> tuple[IntArray, IntArray]:

@@ -1,12 +1,13 @@
 """Offline replay: run the filter node's processing over a recorded bag as fast as it can.
 
 ``dbcslam replay BAG -o OUTDIR`` (see :mod:`dbcslam_ros.cli.commands.replay`) calls
-:func:`replay_bag`. The filter is the live node's own code (:class:`~dbcslam_ros.node.filter_node.
-FilterCore`, the object the live :class:`~dbcslam_ros.node.filter_node.FilterNode` wraps: the same
-:class:`~dbcslam_ros.node.session.FilterSession`, input validation, gating and message building),
-without any ROS node: every input message of the bag is handed to the core's callback for its
-topic in log-time order, and each
-``/object/pose`` is processed at once (no backlog, no dropped poses, no wall-clock effects).
+:func:`replay_bag`. Replay drives a :class:`~dbcslam_ros.node.session.FilterSession` directly,
+with the live node's pieces and parameters (:mod:`dbcslam_ros.node.params`): every input
+message of the bag goes, in log-time order, through the node's one input path
+(:func:`~dbcslam_ros.node.inputs.feed_input`: validation, the session's stamp rules), each
+``/object/pose`` is processed at once (gating and resets as live; no backlog, no dropped
+poses, no wall-clock effects) and the messages of each estimate are the node's
+(:class:`~dbcslam_ros.node.outputs.EstimateOutputs`).
 
 Output bag (a rosbag2 MCAP directory, OUTDIR):
 
@@ -35,7 +36,7 @@ import math
 import shutil
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -43,6 +44,8 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
+from dbcslam_core.errors import DbcSlamError
+from dbcslam_core.scenario import Scenario
 from dbcslam_ros.bag import BagWriter, contract_qos, find_bags, open_bag
 from dbcslam_ros.contract import (
     DIAGNOSTICS,
@@ -50,13 +53,16 @@ from dbcslam_ros.contract import (
     JOINT_STATES,
     OBJECT_POSE,
     OBJECT_WRENCH,
+    OUTPUT_TOPICS,
     POSE,
     SCENARIO,
     TRUTH_CONTACT_MODES,
     TRUTH_FRICTION,
     TRUTH_POSE,
+    message_type,
 )
 from dbcslam_ros.errors import BagError, UsageError
+from dbcslam_ros.node.session import FilterSession
 
 __all__ = [
     "INPUT_TOPICS",
@@ -84,7 +90,7 @@ class ReplayOptions:
 
     Attributes:
         params: filter node parameters (name -> value) overriding the node's defaults; see
-            :data:`dbcslam_ros.node.filter_node.PARAMETERS`.
+            :data:`dbcslam_ros.node.params.PARAMETERS`.
         salvage: read a damaged bag up to the damage instead of failing.
         plots: write PNG plots next to the bag.
         progress: stream for the progress line (None: silent).
@@ -133,7 +139,7 @@ def load_filter_params(path: str | Path) -> dict[str, Any]:
     Accepts ``dbcslam_filter: {ros__parameters: {...}}`` (any node name, or ``/**``) or a
     plain mapping of parameter names. Unknown names raise UsageError listing the valid ones.
     """
-    from dbcslam_ros.node.filter_node import PARAMETERS
+    from dbcslam_ros.node.params import PARAMETERS
 
     p = Path(path)
     try:
@@ -229,6 +235,226 @@ class _Progress:
         self.stream.flush()
 
 
+class _Replayer:
+    """The filter node's processing of a bag, driving a :class:`FilterSession` directly:
+    ``/scenario`` configures the session (a changed scenario reconfigures it), every other
+    input goes through :func:`~dbcslam_ros.node.inputs.feed_input` (the live node's path) and
+    each pose is processed at once; the estimate's messages
+    (:class:`~dbcslam_ros.node.outputs.EstimateOutputs`) and ``/diagnostics`` every
+    ``diagnostics_period`` s of bag time go to ``write(topic, msg, log_time_ns)``.
+
+    Raises:
+        UsageError: bad parameters or an unreadable ``scenario_file``.
+    """
+
+    def __init__(
+        self, params: dict[str, Any], write: Callable[[str, Any, int], None], log: _Logger
+    ) -> None:
+        from dbcslam_ros.errors import ParameterError
+        from dbcslam_ros.node.outputs import EstimateOutputs
+        from dbcslam_ros.node.params import check_params, load_extensions
+
+        self.params = params
+        self.write = write
+        self.log = log
+        try:
+            check_params(params)
+            self.extensions = load_extensions(str(params["model_file"]))
+        except ParameterError as err:
+            raise UsageError(str(err)) from err
+        frame = str(params["frame_id"])
+        marker_period = float(params["marker_period"])
+        self.outputs = EstimateOutputs(frame, int(params["marker_particles"]), marker_period, log)
+        self.diag_period_ns = int(float(params["diagnostics_period"]) * NS)
+        self.session: FilterSession | None = None
+        self.scenario: Scenario | None = None
+        self.poses = 0
+        self.estimates = 0
+        self.rejected_before_scenario = 0
+        self._next_diag: int | None = None
+        if str(params["scenario_file"]):
+            self._configure_from_file(Path(str(params["scenario_file"])))
+
+    def _configure_from_file(self, path: Path) -> None:
+        try:
+            self._configure(Scenario.from_yaml(path.read_text()))
+        except (OSError, DbcSlamError) as err:
+            msg = f"cannot load scenario_file {str(path)!r}: {err}"
+            raise UsageError(msg) from err
+
+    def _configure(self, scenario: Scenario) -> None:
+        from dbcslam_ros.errors import ParameterError
+        from dbcslam_ros.node.params import make_session
+
+        try:
+            self.session = make_session(scenario, self.params, self.extensions)
+        except ParameterError as err:
+            raise UsageError(str(err)) from err
+        self.scenario = scenario
+
+    def take(self, topic: str, msg: Any) -> None:
+        """One input message of the bag, in log-time order."""
+        from dbcslam_ros.node.inputs import feed_input
+
+        if topic == SCENARIO:
+            self._on_scenario(msg)
+            return
+        if topic == OBJECT_POSE:
+            self.poses += 1
+        if self.session is None:
+            self.rejected_before_scenario += topic == OBJECT_POSE
+            return
+        use_force = bool(self.params["use_pusher_wrench"])
+        text = feed_input(self.session, topic, msg, use_pusher_wrench=use_force)
+        if text is not None:
+            self.log.warning(text)
+        if topic == OBJECT_POSE:
+            self._process()
+
+    def _on_scenario(self, msg: Any) -> None:
+        if str(self.params["scenario_file"]):
+            return
+        try:
+            scenario = Scenario.from_yaml(str(msg.data))
+        except (DbcSlamError, ValueError, TypeError, KeyError) as err:
+            self._reject_scenario(f"ignoring /scenario: {err}")
+            return
+        if self.scenario is not None and scenario == self.scenario:
+            return
+        try:
+            self._configure(scenario)
+        except UsageError as err:
+            self._reject_scenario(f"cannot configure for /scenario: {err}")
+
+    def _reject_scenario(self, text: str) -> None:
+        if self.session is not None:
+            self.session.reject("bad_scenario")
+        else:
+            self.rejected_before_scenario += 1
+        self.log.warning(text)
+
+    def _process(self) -> None:
+        assert self.session is not None and self.scenario is not None
+        taken = self.session.process_pending()
+        if taken is None:  # the pose was rejected on arrival
+            return
+        outcome, _received = taken
+        if outcome.rejected == "nan_estimate":
+            self.outputs.not_published["nan_estimate"] += 1
+        if outcome.message and outcome.level != "info":
+            self.log.warning(outcome.message)
+        for res in outcome.estimates:
+            msgs = self.outputs.messages(res, self.scenario, self.session.last_joints())
+            for topic, m in msgs:  # logged at the stamp of the observation they answer
+                self.write(topic, m, res.stamp_ns)
+            self.estimates += bool(msgs)
+            self._diagnostics_due(res.stamp_ns)
+
+    def _diagnostics_due(self, stamp_ns: int) -> None:
+        if self._next_diag is None:
+            self._next_diag = stamp_ns + self.diag_period_ns
+        elif stamp_ns >= self._next_diag:
+            self.write_diagnostics(stamp_ns)
+            self._next_diag = stamp_ns + self.diag_period_ns
+
+    def write_diagnostics(self, stamp_ns: int) -> None:
+        """``/diagnostics`` at this stamp: the live node's keys that mean something offline
+        (counts; the filter's statistics from :meth:`FilterSession.statistics`)."""
+        from dbcslam_ros.node.outputs import diagnostics_message
+
+        values = {
+            "scenario": self.scenario.kind if self.scenario is not None else "",
+            "poses_received": str(self.poses),
+            "estimates_published": str(self.estimates),
+            "rejected_before_scenario": str(self.rejected_before_scenario),
+            "backlog_dropped": "0",
+        }
+        if self.session is not None:
+            values.update(self.session.statistics())
+        msg = diagnostics_message(values, stamp_ns, configured=self.session is not None)
+        self.write(DIAGNOSTICS, msg, stamp_ns)
+
+    def rejected(self) -> dict[str, int]:
+        """Inputs rejected per reason (``before_scenario``: before any scenario)."""
+        out = dict(self.session.rejected) if self.session is not None else {}
+        if self.rejected_before_scenario:
+            out["before_scenario"] = self.rejected_before_scenario
+        return out
+
+
+def _replay_params(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """The filter node's parameters for an offline replay: no real-time budget, so the full
+    filter (:data:`REPLAY_PARTICLES`, not the node's live default) and one
+    ``/dbcslam/markers`` message per estimate, unless asked otherwise."""
+    from dbcslam_ros.errors import ParameterError
+    from dbcslam_ros.node.params import coerce_params
+
+    params = dict(overrides)
+    params.setdefault("particles", REPLAY_PARTICLES)
+    params.setdefault("marker_period", 0.0)
+    try:
+        return coerce_params(params)
+    except ParameterError as err:
+        raise UsageError(str(err)) from err
+
+
+def _check_source(src: Path, counts: Mapping[str, int], params: Mapping[str, Any]) -> int:
+    """The number of poses to replay; BagError when the bag cannot be replayed."""
+    n_poses = counts.get(OBJECT_POSE, 0)
+    if n_poses == 0:
+        have = ", ".join(sorted(t for t, n in counts.items() if n)) or "nothing"
+        msg = f"{src}: no /object/pose messages to replay (the bag has {have})"
+        raise BagError(msg)
+    if counts.get(SCENARIO, 0) == 0 and not params.get("scenario_file"):
+        msg = f"{src}: no /scenario in the bag; pass --scenario-file FILE"
+        raise BagError(msg)
+    return n_poses
+
+
+def _open_output(
+    dst: Path, src: Path, topics: Mapping[str, Any]
+) -> tuple[BagWriter, dict[str, Any]]:
+    """The output bag with its topics: the filter's outputs, then every source topic except
+    earlier estimates; returns the writer and the copied source topics."""
+    writer = BagWriter(dst, overwrite=True, custom_data={"dbcslam_replay_of": str(src)})
+    writer.open()
+    for topic in OUTPUT_TOPICS:
+        writer.add_topic(topic, message_type(topic), (contract_qos(topic),))
+    copied = {
+        name: t
+        for name, t in topics.items()
+        if not name.startswith("/dbcslam/") and name != DIAGNOSTICS
+    }
+    for t in copied.values():
+        writer.add_topic(t.name, t.msgtype, t.offered_qos or (contract_qos(t.name),))
+    return writer, copied
+
+
+def _run(
+    reader: Any,
+    writer: BagWriter,
+    copied: Mapping[str, Any],
+    replayer: _Replayer,
+    progress: _Progress,
+) -> float:
+    """Copy every source message and hand the inputs to the replayer; wall time of the loop."""
+    done = 0
+    started = time.perf_counter()
+    for raw, obj in reader.decoded(copied):
+        writer.write(raw.topic, raw.data, raw.log_time_ns, raw.publish_time_ns)
+        if raw.topic not in INPUT_TOPICS:
+            continue
+        replayer.take(raw.topic, obj)
+        if raw.topic == OBJECT_POSE:
+            done += 1
+            progress.update(done, replayer.estimates)
+    wall = time.perf_counter() - started
+    if replayer.session is not None and replayer.session.last_estimate is not None:
+        replayer.write_diagnostics(replayer.session.last_estimate.stamp_ns)
+    progress.update(done, replayer.estimates, final=True)
+    return wall
+
+
 def replay_bag(
     bag: str | Path, out: str | Path, options: ReplayOptions | None = None
 ) -> ReplayResult:
@@ -240,93 +466,27 @@ def replay_bag(
         UsageError: bad parameters or an output directory that cannot be used.
     """
     from dbcslam_ros import runtime as rt
-    from dbcslam_ros.errors import ParameterError
-    from dbcslam_ros.node.filter_node import OUTPUT_TYPES, FilterCore, coerce_params
 
     opts = options or ReplayOptions()
-    src = Path(bag)
-    dst = Path(out)
-    params = dict(opts.params)
-    # Offline there is no real-time budget: the full filter (not the node's live default
-    # particle count) and one /dbcslam/markers message per estimate, unless asked otherwise.
-    params.setdefault("particles", REPLAY_PARTICLES)
-    params.setdefault("marker_period", 0.0)
+    src, dst = Path(bag), Path(out)
+    params = _replay_params(opts.params)
+    logger = _Logger()
     with open_bag(src, salvage=opts.salvage) as reader:
-        topics = reader.topics()
         counts = reader.counts()
-        n_poses = counts.get(OBJECT_POSE, 0)
-        if n_poses == 0:
-            have = ", ".join(sorted(t for t, n in counts.items() if n)) or "nothing"
-            msg = f"{src}: no /object/pose messages to replay (the bag has {have})"
-            raise BagError(msg)
-        if counts.get(SCENARIO, 0) == 0 and not params.get("scenario_file"):
-            msg = f"{src}: no /scenario in the bag; pass --scenario-file FILE"
-            raise BagError(msg)
+        n_poses = _check_source(src, counts, params)
         _prepare_out(dst, opts.overwrite)
-        writer = BagWriter(dst, overwrite=True, custom_data={"dbcslam_replay_of": str(src)})
-        writer.open()
-        estimates = 0
-        current_stamp: list[int] = [0]
-
-        def sink(topic: str, msg: Any) -> None:
-            nonlocal estimates
-            if topic == POSE:
-                stamp = msg.header.stamp
-                current_stamp[0] = int(stamp.sec) * NS + int(stamp.nanosec)
-                estimates += 1
-            writer.write(topic, rt.encode(msg), current_stamp[0])
-
+        writer, copied = _open_output(dst, src, reader.topics())
         try:
-            for topic, type_name in OUTPUT_TYPES.items():
-                writer.add_topic(topic, type_name, (contract_qos(topic),))
-            copied = {
-                name: t
-                for name, t in topics.items()
-                if not name.startswith("/dbcslam/") and name != DIAGNOSTICS
-            }
-            for t in copied.values():
-                writer.add_topic(t.name, t.msgtype, t.offered_qos or (contract_qos(t.name),))
-            logger = _Logger()
-            try:
-                filt = FilterCore(coerce_params(params), sink, logger)
-            except ParameterError as err:
-                raise UsageError(str(err)) from err
-            callbacks = filt.callbacks()
-            diag_period_ns = int(float(filt.params["diagnostics_period"]) * NS)
-            next_diag: int | None = None
+            replayer = _Replayer(
+                params, lambda topic, msg, t: writer.write(topic, rt.encode(msg), t), logger
+            )
             progress = _Progress(opts.progress, src.name, n_poses)
-            done = 0
-            started = time.perf_counter()
-            for raw, obj in reader.decoded(copied):
-                writer.write(raw.topic, raw.data, raw.log_time_ns, raw.publish_time_ns)
-                callback = callbacks.get(raw.topic)
-                if callback is None:
-                    continue
-                callback(obj)
-                if raw.topic != OBJECT_POSE:
-                    continue
-                filt.process_pending()
-                done += 1
-                last = filt.last_estimate
-                if last is not None:
-                    if next_diag is None:
-                        next_diag = last.stamp_ns + diag_period_ns
-                    elif last.stamp_ns >= next_diag:
-                        filt.publish_diagnostics()
-                        next_diag = last.stamp_ns + diag_period_ns
-                progress.update(done, estimates)
-            wall = time.perf_counter() - started
-            if filt.last_estimate is not None:
-                filt.publish_diagnostics()
-            progress.update(done, estimates, final=True)
+            wall = _run(reader, writer, copied, replayer, progress)
         finally:
             writer.close()
-    session = filt.session
-    rejected = dict(session.rejected) if session is not None else {}
-    if filt.rejected_before_scenario:
-        rejected["before_scenario"] = filt.rejected_before_scenario
+    rejected = replayer.rejected()
     warnings = sorted(logger.warnings.items(), key=lambda kv: -kv[1])
-    if estimates == 0:
+    if replayer.estimates == 0:
         why = "; ".join(f"{text} (x{n})" for text, n in warnings[:3]) or "no warnings"
         msg = (
             f"{src}: the filter produced no estimates from {n_poses} poses "
@@ -337,17 +497,17 @@ def replay_bag(
     metrics["replay"] = {
         "source": str(src),
         "poses": n_poses,
-        "estimates": estimates,
+        "estimates": replayer.estimates,
         "wall_s": round(wall, 4),
-        "steps_per_s": round(estimates / wall, 2) if wall > 0 else None,
+        "steps_per_s": round(replayer.estimates / wall, 2) if wall > 0 else None,
         "rejected": rejected,
         "warnings": {text: n for text, n in warnings[:10]},
-        "params": {k: v for k, v in sorted(filt.params.items())},
+        "params": {k: v for k, v in sorted(params.items())},
     }
     if counts.get(POSE, 0):
         metrics["replay"]["recorded_estimates"] = _compare_recorded(src, dst, opts.salvage)
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
-    return ReplayResult(src, dst, n_poses, estimates, wall, rejected, metrics, plots)
+    return ReplayResult(src, dst, n_poses, replayer.estimates, wall, rejected, metrics, plots)
 
 
 def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:

@@ -136,65 +136,67 @@ def run_bench(
             f"(t = {full.t[start]:.2f} s)"
         )
         for p in particles:
-            row: dict[str, Any] = {"scenario": scen, "particles": p, "slice_start": start}
-            dbc, row["dbcslam_ms"] = _timed(
-                partial(run_dbcslam, part, seed=0, particles=p), warmup, repeat
-            )
-            row["dbcslam_rmse_mm"] = _rmse_mm(dbc)
-            live = dbc.live_hypotheses
-            row["dbcslam_live_hypotheses"] = math.nan if live is None else float(np.mean(live))
-            pgs, row["blackbox_pgs_ms"] = _timed(
-                partial(run_black_box, part, seed=0, particles=p, solver="pgs"), warmup, repeat
-            )
-            row["blackbox_pgs_rmse_mm"] = _rmse_mm(pgs)
-            for key, act in (("blackbox_lemke", False), ("blackbox_lemke_as", True)):
-                if p <= lemke_max:
-                    lem, row[f"{key}_ms"] = _timed(
-                        partial(
-                            run_black_box,
-                            part,
-                            seed=0,
-                            particles=p,
-                            solver="lemke",
-                            active_set=act,
-                        ),
-                        warmup,
-                        repeat,
-                    )
-                    row[f"{key}_rmse_mm"] = _rmse_mm(lem)
-                else:
-                    row[f"{key}_ms"] = math.nan
-                    row[f"{key}_rmse_mm"] = math.nan
-            row["ratio_lemke_over_dbcslam"] = row["blackbox_lemke_ms"] / row["dbcslam_ms"]
-            row["ratio_lemke_as_over_dbcslam"] = row["blackbox_lemke_as_ms"] / row["dbcslam_ms"]
-            row["ratio_pgs_over_dbcslam"] = row["blackbox_pgs_ms"] / row["dbcslam_ms"]
-            scaling.append(row)
+            row = _scaling_row(part, p, warmup=warmup, repeat=repeat, lemke_max=lemke_max)
+            scaling.append({"scenario": scen, "particles": p, "slice_start": start, **row})
             say(
                 f"  P={p:6d}: DBC-SLAM {row['dbcslam_ms']:8.2f} ms  black-box PGS "
                 f"{row['blackbox_pgs_ms']:8.2f} ms  Lemke {_fmt(row['blackbox_lemke_ms'])} ms  "
                 f"Lemke active-set {_fmt(row['blackbox_lemke_as_ms'])} ms"
             )
         if accuracy_particles > 0:
-            runs: list[tuple[str, Callable[[], RunTrace]]] = [
-                ("dbcslam", partial(run_dbcslam, full, seed=0, particles=accuracy_particles)),
-                (
-                    "blackbox_pgs",
-                    partial(
-                        run_black_box, full, seed=0, particles=accuracy_particles, solver="pgs"
-                    ),
-                ),
-            ]
-            for name, fn in runs:
-                tr = fn()
-                m = score(tr)
-                accuracy.append(
-                    {"scenario": scen, "method": name, "particles": accuracy_particles, **m}
-                )
-                say(
-                    f"  full trajectory, {name}: pos RMSE {m['position_rmse'] * 1e3:.2f} mm, "
-                    f"{m['step_time_ms']:.2f} ms/step"
-                )
+            accuracy += _accuracy_rows(scen, full, accuracy_particles, say)
     return {"scaling": scaling, "accuracy": accuracy}
+
+
+def _scaling_row(
+    part: Trajectory, p: int, *, warmup: int, repeat: int, lemke_max: int
+) -> dict[str, Any]:
+    """Step time (ms) and RMSE (mm) of DBC-SLAM and the black-box filters with ``p``
+    particles on the slice, and their ratios (Lemke variants NaN above ``lemke_max``)."""
+    row: dict[str, Any] = {}
+    dbc, row["dbcslam_ms"] = _timed(
+        partial(run_dbcslam, part, seed=0, particles=p), warmup, repeat
+    )
+    row["dbcslam_rmse_mm"] = _rmse_mm(dbc)
+    live = dbc.live_hypotheses
+    row["dbcslam_live_hypotheses"] = math.nan if live is None else float(np.mean(live))
+    pgs, row["blackbox_pgs_ms"] = _timed(
+        partial(run_black_box, part, seed=0, particles=p, solver="pgs"), warmup, repeat
+    )
+    row["blackbox_pgs_rmse_mm"] = _rmse_mm(pgs)
+    for key, act in (("blackbox_lemke", False), ("blackbox_lemke_as", True)):
+        if p <= lemke_max:
+            lemke = partial(
+                run_black_box, part, seed=0, particles=p, solver="lemke", active_set=act
+            )
+            lem, row[f"{key}_ms"] = _timed(lemke, warmup, repeat)
+            row[f"{key}_rmse_mm"] = _rmse_mm(lem)
+        else:
+            row[f"{key}_ms"] = math.nan
+            row[f"{key}_rmse_mm"] = math.nan
+    row["ratio_lemke_over_dbcslam"] = row["blackbox_lemke_ms"] / row["dbcslam_ms"]
+    row["ratio_lemke_as_over_dbcslam"] = row["blackbox_lemke_as_ms"] / row["dbcslam_ms"]
+    row["ratio_pgs_over_dbcslam"] = row["blackbox_pgs_ms"] / row["dbcslam_ms"]
+    return row
+
+
+def _accuracy_rows(
+    scen: str, full: Trajectory, particles: int, say: Callable[[str], None]
+) -> list[dict[str, Any]]:
+    """Full metrics of DBC-SLAM and the black-box PGS filter on the whole trajectory."""
+    runs: list[tuple[str, Callable[[], RunTrace]]] = [
+        ("dbcslam", partial(run_dbcslam, full, seed=0, particles=particles)),
+        ("blackbox_pgs", partial(run_black_box, full, seed=0, particles=particles, solver="pgs")),
+    ]
+    rows: list[dict[str, Any]] = []
+    for name, fn in runs:
+        m = score(fn())
+        rows.append({"scenario": scen, "method": name, "particles": particles, **m})
+        say(
+            f"  full trajectory, {name}: pos RMSE {m['position_rmse'] * 1e3:.2f} mm, "
+            f"{m['step_time_ms']:.2f} ms/step"
+        )
+    return rows
 
 
 def render_markdown(result: dict[str, Any], command: str) -> str:

@@ -47,7 +47,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -154,84 +154,140 @@ def run_live(
     from dbcslam_ros import runtime as rt
 
     node = rt.Node(f"bench_live_{scenario}")
-    truth: dict[int, tuple[float, float]] = {}
-    obs: dict[int, tuple[float, float]] = {}
-    est: dict[int, tuple[float, float]] = {}
-    diags: list[dict[str, str]] = []
-
-    def on_truth(m: Any) -> None:
-        truth[_stamp(m)] = (m.pose.position.x, m.pose.position.y)
-
-    def on_obs(m: Any) -> None:
-        obs[_stamp(m)] = (m.pose.position.x, m.pose.position.y)
-
-    def on_est(m: Any) -> None:
-        est[_stamp(m)] = (m.pose.pose.position.x, m.pose.pose.position.y)
-
-    def on_diag(m: Any) -> None:
-        for status in m.status:
-            if status.name == "dbcslam_filter":
-                diags.append({kv.key: kv.value for kv in status.values})
-
-    cls = rt.message_class
-    reliable = rt.qos_profile("default", depth=1000)
-    node.create_subscription(cls("geometry_msgs/msg/PoseStamped"), TRUTH_POSE, on_truth, reliable)
-    node.create_subscription(
-        cls("geometry_msgs/msg/PoseStamped"),
-        OBJECT_POSE,
-        on_obs,
-        rt.qos_profile("sensor_data", depth=1000),
-    )
-    node.create_subscription(
-        cls("geometry_msgs/msg/PoseWithCovarianceStamped"), POSE, on_est, reliable
-    )
-    node.create_subscription(
-        cls("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS, on_diag, reliable
-    )
-    py = sys.executable
-    filter_cmd = [py, "-m", "dbcslam_ros.node.filter_node", "--ros-args"]
-    filter_cmd += ["-p", f"particles:={particles}", "-p", "diagnostics_period:=0.5"]
-    filter_cmd += ["-p", f"use_pusher_wrench:={'true' if pusher_wrench else 'false'}"]
-    sim_cmd = [py, "-m", "sim_publisher.node", "--ros-args", "-p", f"scenario:={scenario}"]
-    sim_cmd += ["-p", f"engine:={engine}", "-p", "wait_for_subscribers:=30.0"]
-    sim_cmd += ["-p", "min_subscribers:=2"]  # the filter and this listener
-    if duration > 0.0:
-        sim_cmd += ["-p", f"duration:={duration}"]
-
-    def out(name: str) -> Any:
-        if log_dir is None:
-            return subprocess.DEVNULL
-        log_dir.mkdir(parents=True, exist_ok=True)
-        return (log_dir / f"{scenario}_{name}.log").open("wb")
-
+    heard = _Heard()
+    heard.subscribe(node)
+    filter_cmd = _filter_command(particles, pusher_wrench=pusher_wrench)
+    sim_cmd = _sim_command(scenario, engine, duration)
     load_before = os.getloadavg()[0]
     procs: list[subprocess.Popen[bytes]] = []
     started = time.monotonic()
     try:
-        procs.append(subprocess.Popen(filter_cmd, stdout=out("filter"), stderr=subprocess.STDOUT))
-        sim = subprocess.Popen(sim_cmd, stdout=out("sim"), stderr=subprocess.STDOUT)
+        filter_log = _log(log_dir, scenario, "filter")
+        procs.append(subprocess.Popen(filter_cmd, stdout=filter_log, stderr=subprocess.STDOUT))
+        sim_log = _log(log_dir, scenario, "sim")
+        sim = subprocess.Popen(sim_cmd, stdout=sim_log, stderr=subprocess.STDOUT)
         procs.append(sim)
-        while sim.poll() is None:
-            if time.monotonic() - started > timeout_s:
-                msg = f"bench_live: {scenario} simulator still running after {timeout_s} s"
-                raise RuntimeError(msg)
-            rt.spin_once(node, timeout_sec=0.05)
-        if sim.returncode != 0:
-            msg = f"bench_live: simulator for {scenario} exited with code {sim.returncode}"
-            raise RuntimeError(msg)
+        _listen_until_exit(node, sim, scenario, started, timeout_s)
         wall = time.monotonic() - started
-        n_diag = len(diags)
-        end = time.monotonic() + 3.0
-        while time.monotonic() < end and len(diags) < n_diag + 2:
-            rt.spin_once(node, timeout_sec=0.05)
+        _listen_for_last_diagnostics(node, heard.diags)
     finally:
         for proc in reversed(procs):
             _stop(proc)
         node.destroy_node()
-    if not diags:
+    return _live_result(heard, scenario, engine, particles, load_before=load_before, wall=wall)
+
+
+@dataclass
+class _Heard:
+    """What the benchmark's listener heard: planar positions (m) by stamp (ns) of the truth,
+    the observations and the estimates, and the filter's /diagnostics key/values in order."""
+
+    truth: dict[int, tuple[float, float]] = field(default_factory=dict)
+    obs: dict[int, tuple[float, float]] = field(default_factory=dict)
+    est: dict[int, tuple[float, float]] = field(default_factory=dict)
+    diags: list[dict[str, str]] = field(default_factory=list)
+
+    def subscribe(self, node: Any) -> None:
+        """Subscribe ``node`` to the four topics (observations best effort, as sent)."""
+        from dbcslam_ros import runtime as rt
+
+        cls = rt.message_class
+        reliable = rt.qos_profile("default", depth=1000)
+        pose_stamped = cls("geometry_msgs/msg/PoseStamped")
+        node.create_subscription(pose_stamped, TRUTH_POSE, self._on_truth, reliable)
+        node.create_subscription(
+            pose_stamped, OBJECT_POSE, self._on_obs, rt.qos_profile("sensor_data", depth=1000)
+        )
+        node.create_subscription(
+            cls("geometry_msgs/msg/PoseWithCovarianceStamped"), POSE, self._on_est, reliable
+        )
+        node.create_subscription(
+            cls("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS, self._on_diag, reliable
+        )
+
+    def _on_truth(self, m: Any) -> None:
+        self.truth[_stamp(m)] = (m.pose.position.x, m.pose.position.y)
+
+    def _on_obs(self, m: Any) -> None:
+        self.obs[_stamp(m)] = (m.pose.position.x, m.pose.position.y)
+
+    def _on_est(self, m: Any) -> None:
+        self.est[_stamp(m)] = (m.pose.pose.position.x, m.pose.pose.position.y)
+
+    def _on_diag(self, m: Any) -> None:
+        for status in m.status:
+            if status.name == "dbcslam_filter":
+                self.diags.append({kv.key: kv.value for kv in status.values})
+
+
+def _filter_command(particles: int, *, pusher_wrench: bool) -> list[str]:
+    """The filter node with ``particles`` (< 0: its live default), diagnostics twice a second."""
+    cmd = [sys.executable, "-m", "dbcslam_ros.node.filter_node", "--ros-args"]
+    cmd += ["-p", f"particles:={particles}", "-p", "diagnostics_period:=0.5"]
+    cmd += ["-p", f"use_pusher_wrench:={'true' if pusher_wrench else 'false'}"]
+    return cmd
+
+
+def _sim_command(scenario: str, engine: str, duration: float) -> list[str]:
+    """The simulator node; it waits for the filter and the listener before it starts."""
+    cmd = [sys.executable, "-m", "sim_publisher.node", "--ros-args", "-p", f"scenario:={scenario}"]
+    cmd += ["-p", f"engine:={engine}", "-p", "wait_for_subscribers:=30.0"]
+    cmd += ["-p", "min_subscribers:=2"]  # the filter and this listener
+    if duration > 0.0:
+        cmd += ["-p", f"duration:={duration}"]
+    return cmd
+
+
+def _log(log_dir: Path | None, scenario: str, name: str) -> Any:
+    """Where a process's output goes: ``<log_dir>/<scenario>_<name>.log``, or nowhere."""
+    if log_dir is None:
+        return subprocess.DEVNULL
+    log_dir.mkdir(parents=True, exist_ok=True)
+    return (log_dir / f"{scenario}_{name}.log").open("wb")
+
+
+def _listen_until_exit(
+    node: Any, sim: subprocess.Popen[bytes], scenario: str, started: float, timeout_s: float
+) -> None:
+    """Spin ``node`` until the simulator exits (within ``timeout_s`` of ``started``, monotonic
+    s) with code 0."""
+    from dbcslam_ros import runtime as rt
+
+    while sim.poll() is None:
+        if time.monotonic() - started > timeout_s:
+            msg = f"bench_live: {scenario} simulator still running after {timeout_s} s"
+            raise RuntimeError(msg)
+        rt.spin_once(node, timeout_sec=0.05)
+    if sim.returncode != 0:
+        msg = f"bench_live: simulator for {scenario} exited with code {sim.returncode}"
+        raise RuntimeError(msg)
+
+
+def _listen_for_last_diagnostics(node: Any, diags: list[dict[str, str]]) -> None:
+    """Spin up to 3 s more, until two more /diagnostics arrived (they cover the last poses)."""
+    from dbcslam_ros import runtime as rt
+
+    n_diag = len(diags)
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end and len(diags) < n_diag + 2:
+        rt.spin_once(node, timeout_sec=0.05)
+
+
+def _live_result(
+    heard: _Heard,
+    scenario: str,
+    engine: str,
+    particles: int,
+    *,
+    load_before: float,
+    wall: float,
+) -> LiveResult:
+    """The run's figures: the filter's last /diagnostics, errors over the stamps heard."""
+    if not heard.diags:
         msg = f"bench_live: no /diagnostics from the filter node for {scenario}"
         raise RuntimeError(msg)
-    d = diags[-1]
+    d = heard.diags[-1]
+    truth, obs, est = heard.truth, heard.obs, heard.est
     common = [s for s in est if s in truth and s in obs]
     err = [math.dist(est[s], truth[s]) for s in common]
     noise = [math.dist(obs[s], truth[s]) for s in common]
@@ -287,7 +343,7 @@ def offline_cpu(
     """
     from dbcslam_ros import runtime as rt
     from dbcslam_ros.convert import JointReading, PoseReading, WrenchReading, estimate_messages
-    from dbcslam_ros.node.filter_node import PARAMETERS, build_config
+    from dbcslam_ros.node.params import PARAMETERS, build_config
     from dbcslam_ros.node.session import FilterSession
     from sim_publisher.node import make_source
 
@@ -408,7 +464,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; exit 0 on success, 1 when a run failed, 2 on bad arguments."""
-    from dbcslam_ros.node.filter_node import live_particles
+    from dbcslam_ros.node.params import live_particles
 
     args = parse_args(argv)
     os.environ["ROS_DOMAIN_ID"] = str(

@@ -40,6 +40,7 @@ API: :func:`run_eval` (:class:`EvalOptions`) returns the summary dict written as
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import multiprocessing as mp
@@ -47,15 +48,18 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
 from dbcslam_ros.errors import UsageError
+
+if TYPE_CHECKING:
+    from dbcslam_ros.offline.evaluate import BagArrays
 
 __all__ = [
     "DEFAULT_DATA",
@@ -167,11 +171,10 @@ def resolve_data(data: str | Path) -> list[Path]:
 def filter_uses_pusher_wrench(params: dict[str, Any] | None = None) -> bool:
     """True when the filter node with these parameters uses ``/pusher/wrench`` as a force
     observation (it subscribes to it and its ``use_pusher_wrench`` parameter is on)."""
-    from dbcslam_ros.node.filter_node import INPUT_TOPICS, coerce_params
+    from dbcslam_ros.contract import INPUT_TOPICS, PUSHER_WRENCH
+    from dbcslam_ros.node.params import coerce_params
 
-    return "/pusher/wrench" in INPUT_TOPICS and bool(
-        coerce_params(params or {})["use_pusher_wrench"]
-    )
+    return PUSHER_WRENCH in INPUT_TOPICS and bool(coerce_params(params or {})["use_pusher_wrench"])
 
 
 def _import(files: list[Path], bags_dir: Path, opts: EvalOptions) -> list[dict[str, Any]]:
@@ -474,15 +477,29 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from dbcslam_ros.offline.evaluate import NS, load_bag_arrays
+    from dbcslam_ros.offline.evaluate import load_bag_arrays
 
     agree = np.asarray([_num(r["metrics"].get("contact_flag_agreement")) for r in rows])
-    order = np.argsort(np.where(np.isfinite(agree), agree, np.inf))
-    pick = rows[int(order[(int(np.isfinite(agree).sum()) or 1) // 2])]
+    pick = _median_push(rows, agree)
     arr = load_bag_arrays(pick["replay"])
-    t0 = arr.t0
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
-    ax = axes[0]
+    _trajectory_panel(axes[0], arr, shape, pick)
+    _contact_panel(axes[1], arr, pick)
+    _pushes_panel(axes[2], shape, rows, agree)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _median_push(rows: list[dict[str, Any]], agree: np.ndarray) -> dict[str, Any]:
+    """The push with the median contact agreement (those without one sort last)."""
+    order = np.argsort(np.where(np.isfinite(agree), agree, np.inf))
+    return rows[int(order[(int(np.isfinite(agree).sum()) or 1) // 2])]
+
+
+def _trajectory_panel(ax: Any, arr: BagArrays, shape: str, pick: dict[str, Any]) -> None:
+    """Observed, Vicon and estimated x-y path of one push (mm), its RMSE in the title."""
     ax.plot(
         1000 * arr.obs_pose[:, 0],
         1000 * arr.obs_pose[:, 1],
@@ -510,7 +527,14 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
         f" x noise, yaw {_fmt(m.get('yaw_rmse_over_noise'), '.2f')} x noise",
         fontsize=8,
     )
-    ax = axes[1]
+
+
+def _contact_panel(ax: Any, arr: BagArrays, pick: dict[str, Any]) -> None:
+    """P(pusher in contact) over time against the measured flag, |F| and the Vicon speed
+    (each scaled to its maximum)."""
+    from dbcslam_ros.offline.evaluate import NS
+
+    t0 = arr.t0
     if arr.modes is not None:
         ax.plot(
             (arr.est_t - t0) / NS,
@@ -553,9 +577,13 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
     ax.axhline(0.5, color="0.5", lw=0.5, ls="--")
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("t (s)")
-    ax.set_title(f"contact agreement {_fmt(m.get('contact_flag_agreement'), '.3f')}", fontsize=8)
+    agreement = _fmt(pick["metrics"].get("contact_flag_agreement"), ".3f")
+    ax.set_title(f"contact agreement {agreement}", fontsize=8)
     ax.legend(fontsize=7)
-    ax = axes[2]
+
+
+def _pushes_panel(ax: Any, shape: str, rows: list[dict[str, Any]], agree: np.ndarray) -> None:
+    """Contact agreement and pose RMSE / noise of every push of the shape, targets dashed."""
     pos = np.asarray([_num(r["metrics"].get("position_rmse_over_noise")) for r in rows])
     yaw = np.asarray([_num(r["metrics"].get("yaw_rmse_over_noise")) for r in rows])
     x = np.arange(len(rows))
@@ -568,10 +596,6 @@ def _figure(shape: str, rows: list[dict[str, Any]], path: Path) -> Path:
     ax.set_title(f"all {len(rows)} {shape} pushes (dashed: targets)", fontsize=8)
     ax.legend(fontsize=7)
     ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 def _say(stream: IO[str] | None, text: str) -> None:
@@ -596,14 +620,7 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         raise UsageError(msg)
     files = resolve_data(opts.data)[:: opts.every]
     started = time.perf_counter()
-    tmp: tempfile.TemporaryDirectory[str] | None = None
-    if opts.work is None:
-        tmp = tempfile.TemporaryDirectory(prefix="dbcslam_mitpush_")
-        work = Path(tmp.name)
-    else:
-        work = Path(opts.work)
-        work.mkdir(parents=True, exist_ok=True)
-    try:
+    with _work_dir(opts.work) as work:
         bags_dir = work / "bags"
         replays_dir = work / "replays"
         bags_dir.mkdir(parents=True, exist_ok=True)
@@ -612,71 +629,123 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
         params["seed"] = opts.seed
         params.update(dict(opts.params))
         if opts.reuse:
-            pushes = _reevaluate(bags_dir, replays_dir)
-            _say(opts.progress, f"re-evaluated {len(pushes)} replays in {replays_dir}")
-            used = pushes[0]["metrics"].get("replay", {}).get("params")
-            params = dict(used) if isinstance(used, dict) else params
+            pushes, params = _reevaluate_work(bags_dir, replays_dir, params, opts)
         else:
-            pushes = _import(files, bags_dir, opts)
-            _say(
-                opts.progress,
-                f"imported {len(pushes)} pushes into {bags_dir} "
-                f"({time.perf_counter() - started:.1f} s); replaying with {opts.particles} "
-                f"particles on {opts.jobs} worker(s)",
+            pushes = _import_and_replay(
+                files, bags_dir, replays_dir, params, opts, started=started
             )
-            for p in pushes:
-                p["replay"] = str(replays_dir / p["name"])
-            _replay_all(pushes, params, opts)
-        uses_wrench = filter_uses_pusher_wrench(params)
-        summary: dict[str, Any] = {
-            "settings": {
-                "command": command,
-                "data": _portable(opts.data),
-                "pushes": len(pushes),
-                "every": opts.every,
-                "push_model": opts.push_model,
-                "particles": int(params.get("particles", opts.particles)),
-                "jobs": opts.jobs,
-                "reused_work": str(work) if opts.reuse else None,
-                "replayed_by": _replayed_by(work) if opts.reuse else None,
-                "noise_position": opts.noise_position,
-                "noise_yaw": opts.noise_yaw,
-                "seed": opts.seed,
-                "params": params,
-                "pusher_candidates": _candidates(pushes, "pusher"),
-                "surface_candidates": _candidates(pushes, "surface"),
-                "filter_uses_pusher_wrench": uses_wrench,
-                "wall_s": 0.0,
-            },
-            "targets": {
-                "rmse_over_noise_max": TARGET_RMSE_OVER_NOISE,
-                "contact_agreement_min": TARGET_CONTACT_AGREEMENT,
-            },
-            "groups": summarise(pushes),
-        }
+        summary = _summary(pushes, params, opts, work, command)
         out = Path(opts.out)
         out.mkdir(parents=True, exist_ok=True)
-        figures: list[str] = []
-        if opts.figures:
-            for shape in sorted({p["shape"] for p in pushes}):
-                rows = [p for p in pushes if p["shape"] == shape]
-                figures.append(_figure(shape, rows, out / f"mitpush_{shape}.png").name)
-        summary["figures"] = figures
+        summary["figures"] = _shape_figures(pushes, out) if opts.figures else []
         summary["settings"]["wall_s"] = round(time.perf_counter() - started, 1)
         summary["pushes"] = [
             {k: v for k, v in p.items() if k not in ("bag", "replay")} for p in pushes
         ]
-        (out / "mitpush.json").write_text(json.dumps(summary, indent=2) + "\n")
-        if not opts.reuse:
-            run = {k: summary["settings"][k] for k in ("command", "wall_s", "jobs")}
-            (work / "run.json").write_text(json.dumps(run, indent=2) + "\n")
-        (out / "mitpush.md").write_text(_markdown(summary))
-        _say(opts.progress, markdown_table(summary))
-        _say(opts.progress, f"wrote {out / 'mitpush.md'}, {out / 'mitpush.json'}")
+        _write_outputs(summary, out, work, opts)
         return summary
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
+
+
+@contextlib.contextmanager
+def _work_dir(work: Path | None) -> Iterator[Path]:
+    """``work`` (created), or a temporary directory deleted afterwards when None."""
+    if work is None:
+        with tempfile.TemporaryDirectory(prefix="dbcslam_mitpush_") as tmp:
+            yield Path(tmp)
+    else:
+        path = Path(work)
+        path.mkdir(parents=True, exist_ok=True)
+        yield path
+
+
+def _reevaluate_work(
+    bags_dir: Path, replays_dir: Path, params: dict[str, Any], opts: EvalOptions
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """``--reuse``: the pushes of an earlier run's replays and the filter parameters it used."""
+    pushes = _reevaluate(bags_dir, replays_dir)
+    _say(opts.progress, f"re-evaluated {len(pushes)} replays in {replays_dir}")
+    used = pushes[0]["metrics"].get("replay", {}).get("params")
+    return pushes, dict(used) if isinstance(used, dict) else params
+
+
+def _import_and_replay(
+    files: list[Path],
+    bags_dir: Path,
+    replays_dir: Path,
+    params: dict[str, Any],
+    opts: EvalOptions,
+    *,
+    started: float,
+) -> list[dict[str, Any]]:
+    """Import the push files into bags and replay each into ``replays_dir``."""
+    pushes = _import(files, bags_dir, opts)
+    _say(
+        opts.progress,
+        f"imported {len(pushes)} pushes into {bags_dir} "
+        f"({time.perf_counter() - started:.1f} s); replaying with {opts.particles} "
+        f"particles on {opts.jobs} worker(s)",
+    )
+    for p in pushes:
+        p["replay"] = str(replays_dir / p["name"])
+    _replay_all(pushes, params, opts)
+    return pushes
+
+
+def _summary(
+    pushes: list[dict[str, Any]],
+    params: dict[str, Any],
+    opts: EvalOptions,
+    work: Path,
+    command: str,
+) -> dict[str, Any]:
+    """Settings, targets and per-group medians of the evaluation (``wall_s`` set at the end)."""
+    return {
+        "settings": {
+            "command": command,
+            "data": _portable(opts.data),
+            "pushes": len(pushes),
+            "every": opts.every,
+            "push_model": opts.push_model,
+            "particles": int(params.get("particles", opts.particles)),
+            "jobs": opts.jobs,
+            "reused_work": str(work) if opts.reuse else None,
+            "replayed_by": _replayed_by(work) if opts.reuse else None,
+            "noise_position": opts.noise_position,
+            "noise_yaw": opts.noise_yaw,
+            "seed": opts.seed,
+            "params": params,
+            "pusher_candidates": _candidates(pushes, "pusher"),
+            "surface_candidates": _candidates(pushes, "surface"),
+            "filter_uses_pusher_wrench": filter_uses_pusher_wrench(params),
+            "wall_s": 0.0,
+        },
+        "targets": {
+            "rmse_over_noise_max": TARGET_RMSE_OVER_NOISE,
+            "contact_agreement_min": TARGET_CONTACT_AGREEMENT,
+        },
+        "groups": summarise(pushes),
+    }
+
+
+def _shape_figures(pushes: list[dict[str, Any]], out: Path) -> list[str]:
+    """``mitpush_<shape>.png`` per shape (sorted) in ``out``; returns their file names."""
+    figures: list[str] = []
+    for shape in sorted({p["shape"] for p in pushes}):
+        rows = [p for p in pushes if p["shape"] == shape]
+        figures.append(_figure(shape, rows, out / f"mitpush_{shape}.png").name)
+    return figures
+
+
+def _write_outputs(summary: dict[str, Any], out: Path, work: Path, opts: EvalOptions) -> None:
+    """``mitpush.json`` and ``mitpush.md`` into ``out`` (and, after a replay, ``run.json``
+    with the command and wall time into ``work``); the table to the progress stream."""
+    (out / "mitpush.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if not opts.reuse:
+        run = {k: summary["settings"][k] for k in ("command", "wall_s", "jobs")}
+        (work / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    (out / "mitpush.md").write_text(_markdown(summary))
+    _say(opts.progress, markdown_table(summary))
+    _say(opts.progress, f"wrote {out / 'mitpush.md'}, {out / 'mitpush.json'}")
 
 
 def _progress_line(i: int, n: int, push: dict[str, Any], wall: float) -> str:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dbcslam_core.angles import wrap_angle
 from dbcslam_ros.importers import mitpush as mp
 
 __all__ = [
@@ -289,7 +290,7 @@ def _ft_report(series: Sequence[mp.PushSeries]) -> list[str]:
         if moving.any():
             f = s.force[moving, :2]
             tilt = np.arctan2(f[:, 1], f[:, 0]) - math.atan2(push[1], push[0]) - math.pi
-            tilt = (tilt + s.raw.info.angle + math.pi) % (2 * math.pi) - math.pi
+            tilt = wrap_angle(tilt + s.raw.info.angle)
             tilts.append(float(np.median(tilt)))
     lines.append(f"F/T: stale streams in {len(stale)}/{len(series)} files")
     lines.append(
@@ -309,11 +310,45 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     data = Path(args[0]) if args else DEFAULT_DATA
     series = _load(data, dt=0.004)
-    shapes = sorted({s.raw.info.shape for s in series})
+    groups = _by_shape(series)
     print(f"{len(series)} pushes from {data}")
-    print("\n== alignment (importer constants; fit = extra correction on top of them)")
-    for shape in shapes:
-        group = [s for s in series if s.raw.info.shape == shape]
+    _print_section(
+        "alignment (importer constants; fit = extra correction on top of them)",
+        _alignment_report(groups),
+    )
+    _print_section("clocks", _clock_report(series))
+    _print_section("F/T", _ft_report(series))
+    motion_lines, motions = _motion_report(groups)
+    _print_section(
+        f"motion vs quasi-static prediction (mu_pusher={PUSHER_MU}, uniform pressure)",
+        motion_lines,
+    )
+    _print_section(
+        "friction radius c scaled (pressure concentrated toward the centre: scale < 1)",
+        _friction_radius_report(groups),
+    )
+    print("\nper push: name | pusher mm | disp mm (pred) | rot rad (pred) | slip mm (pred)")
+    for line in _per_push_report(motions):
+        print(line)
+    return 0
+
+
+def _print_section(title: str, lines: Sequence[str]) -> None:
+    print(f"\n== {title}")
+    for line in lines:
+        print(line)
+
+
+def _by_shape(series: Sequence[mp.PushSeries]) -> dict[str, list[mp.PushSeries]]:
+    """The pushes of each shape, shapes sorted by name."""
+    shapes = sorted({s.raw.info.shape for s in series})
+    return {shape: [s for s in series if s.raw.info.shape == shape] for shape in shapes}
+
+
+def _alignment_report(groups: dict[str, list[mp.PushSeries]]) -> list[str]:
+    """Per shape: the importer's alignment, its first-contact and gap errors, the extra fit."""
+    lines = []
+    for shape, group in groups.items():
         checks = [mp.alignment_check(s) for s in group]
         onset = [
             c.onset_error
@@ -323,32 +358,37 @@ def main(argv: Sequence[str] | None = None) -> int:
         moving = [c.moving_gap for c in checks if math.isfinite(c.moving_gap)]
         eps, dx, dy = fit_alignment(group)
         a = mp.ALIGNMENTS[shape]
-        print(
+        lines.append(
             f"{shape:6s} n={len(group):2d} yaw_offset={a.yaw_offset:+.4f} offset=("
             f"{a.offset[0] * 1e3:+.1f}, {a.offset[1] * 1e3:+.1f}) mm | first-contact error "
             f"median {np.median(onset) * 1e3:.2f} max {np.max(onset) * 1e3:.2f} mm | "
             f"|gap| while moving median {np.median(moving) * 1e3:.2f} mm | fit extra: "
             f"yaw {eps:+.4f} rad, offset ({dx * 1e3:+.2f}, {dy * 1e3:+.2f}) mm"
         )
+    return lines
+
+
+def _clock_report(series: Sequence[mp.PushSeries]) -> list[str]:
+    """Stream start offsets and the object-stop minus tip-stop lag of near-sticking pushes."""
     offsets = np.array([[s.start_offsets[k] for k in mp.STREAMS] for s in series])
-    print("\n== clocks")
-    print(
-        "stream start after the earliest (s), max over files: "
-        + ", ".join(f"{k} {v:.3f}" for k, v in zip(mp.STREAMS, offsets.max(axis=0), strict=True))
-    )
     lags = stop_lags(series)
-    print(
+    return [
+        "stream start after the earliest (s), max over files: "
+        + ", ".join(f"{k} {v:.3f}" for k, v in zip(mp.STREAMS, offsets.max(axis=0), strict=True)),
         f"object stop - tip stop in {lags.size} near-sticking pushes: median "
         f"{np.median(lags) * 1e3:+.1f} ms, {np.sum(np.abs(lags) < 0.01)}/{lags.size} within "
-        "+-10 ms (the rest: stop not detected cleanly)"
-    )
-    print("\n== F/T")
-    for line in _ft_report(series):
-        print(line)
-    print(f"\n== motion vs quasi-static prediction (mu_pusher={PUSHER_MU}, uniform pressure)")
-    motions = []
-    for shape in shapes:
-        group = [s for s in series if s.raw.info.shape == shape]
+        "+-10 ms (the rest: stop not detected cleanly)",
+    ]
+
+
+def _motion_report(
+    groups: dict[str, list[mp.PushSeries]],
+) -> tuple[list[str], list[PushMotion]]:
+    """Per shape: measured vs quasi-static displacement ratio, rotation and final error;
+    also every push's :class:`PushMotion` (shapes in order)."""
+    lines = []
+    motions: list[PushMotion] = []
+    for shape, group in groups.items():
         c = friction_radius(group[0].outline.vertices)
         ms = [analyse_motion(s, c) for s in group]
         motions.extend(ms)
@@ -357,7 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rot = np.array([m.rotation for m in ms])
         prot = np.array([m.predicted_rotation for m in ms])
         sign = np.mean(np.sign(rot[np.abs(rot) > 0.02]) == np.sign(prot[np.abs(rot) > 0.02]))
-        print(
+        lines.append(
             f"{shape:6s} c={c * 1e3:.1f} mm | object/pusher displacement measured "
             f"{np.median(ratio):.2f} (range {ratio.min():.2f}-{ratio.max():.2f}) predicted "
             f"{np.median(pratio):.2f} | |rotation| measured median {np.median(np.abs(rot)):.3f}"
@@ -366,13 +406,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{np.median([m.final_position_error for m in ms]) * 1e3:.1f} mm, yaw "
             f"{np.median(np.abs([m.final_yaw_error for m in ms])):.3f} rad"
         )
-    print("\n== friction radius c scaled (pressure concentrated toward the centre: scale < 1)")
+    return lines, motions
+
+
+def _friction_radius_report(groups: dict[str, list[mp.PushSeries]]) -> list[str]:
+    """Final errors and rotation ratio with the friction radius c scaled by each C_SCALES."""
+    lines = []
     for scale in C_SCALES:
         yaw_err: list[float] = []
         pos_err: list[float] = []
         rot_ratio: list[float] = []
-        for shape in shapes:
-            group = [s for s in series if s.raw.info.shape == shape]
+        for group in groups.values():
             c = scale * friction_radius(group[0].outline.vertices)
             for s in group:
                 m = analyse_motion(s, c)
@@ -380,20 +424,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                 pos_err.append(m.final_position_error)
                 if abs(m.rotation) > 0.05:
                     rot_ratio.append(m.predicted_rotation / m.rotation)
-        print(
+        lines.append(
             f"c x {scale:.2f}: final yaw error median {np.median(yaw_err):.3f} rad, position "
             f"{np.median(pos_err) * 1e3:.1f} mm, predicted/measured rotation median "
             f"{np.median(rot_ratio):.2f}"
         )
-    print("\nper push: name | pusher mm | disp mm (pred) | rot rad (pred) | slip mm (pred)")
-    for m in motions:
-        print(
-            f"  {m.name:38s} {m.pusher * 1e3:5.1f} | {m.displacement * 1e3:5.1f} "
-            f"({m.predicted_displacement * 1e3:5.1f}) | {m.rotation:+.3f} "
-            f"({m.predicted_rotation:+.3f}) | {m.slip * 1e3:+6.1f} "
-            f"({m.predicted_slip * 1e3:+6.1f})"
-        )
-    return 0
+    return lines
+
+
+def _per_push_report(motions: Sequence[PushMotion]) -> list[str]:
+    """One line per push: pusher travel, displacement, rotation and slip (predicted)."""
+    return [
+        f"  {m.name:38s} {m.pusher * 1e3:5.1f} | {m.displacement * 1e3:5.1f} "
+        f"({m.predicted_displacement * 1e3:5.1f}) | {m.rotation:+.3f} "
+        f"({m.predicted_rotation:+.3f}) | {m.slip * 1e3:+6.1f} "
+        f"({m.predicted_slip * 1e3:+6.1f})"
+        for m in motions
+    ]
 
 
 if __name__ == "__main__":

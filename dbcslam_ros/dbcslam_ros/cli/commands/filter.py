@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dbcslam_ros.cli.registry import Command
+from dbcslam_ros.cli.registry import Command, add_ros_args
 from dbcslam_ros.errors import UsageError
 
 __all__ = ["COMMAND"]
@@ -46,14 +46,7 @@ _EXAMPLES = """\
 
 def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="FILE", help="ROS 2 parameters YAML file")
-    parser.add_argument(
-        "--ros-args",
-        dest="ros_args",
-        nargs=argparse.REMAINDER,
-        default=[],
-        metavar="ARG",
-        help="ROS arguments passed to the node (-p NAME:=VALUE ...); must come last",
-    )
+    add_ros_args(parser)
 
 
 def _run(args: argparse.Namespace) -> int:

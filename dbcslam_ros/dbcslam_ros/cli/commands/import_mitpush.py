@@ -204,12 +204,25 @@ def _report_fit(shape: str, fit: AlignmentFit, mass: float, inertia: float, sour
 
 
 def _configure(parser: argparse.ArgumentParser) -> None:
+    _add_files(parser)
+    _add_sampling(parser)
+    _add_scenario(parser)
+    _add_mass_properties(parser)
+    parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
+
+
+def _add_files(parser: argparse.ArgumentParser) -> None:
+    """The push files in, the bag directory out."""
     parser.add_argument(
         "h5", nargs="+", metavar="H5", help="push file (.h5) or directory of push files"
     )
     parser.add_argument(
         "-o", "--output", required=True, metavar="DIR", help="directory for the bags"
     )
+
+
+def _add_sampling(parser: argparse.ArgumentParser) -> None:
+    """Resampling step, the noise added to the observed pose, and the contact threshold."""
     parser.add_argument(
         "--dt",
         type=_positive_float,
@@ -239,6 +252,10 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="F/T force magnitude above which the pusher is in contact, N (default 0.25)",
     )
+
+
+def _add_scenario(parser: argparse.ArgumentParser) -> None:
+    """What the /scenario says: friction candidates, push model, the outlines' directory."""
     parser.add_argument(
         "--pusher-candidates",
         type=_nonneg_float,
@@ -268,6 +285,10 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="directory with <shape>_ext.npy outlines (default: the dataset's shapes/)",
     )
+
+
+def _add_mass_properties(parser: argparse.ArgumentParser) -> None:
+    """Mass and inertia: of a uniform plate cut to the outline, or given."""
     plate = parser.add_argument_group(
         "mass properties (default: a uniform stainless-steel plate cut to the outline)"
     )
@@ -301,7 +322,6 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         metavar="KG_M2",
         help="polar inertia about the centroid, kg m^2, instead of the computed one",
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
 
 
 COMMAND = Command(
