@@ -42,16 +42,21 @@ from .scenario import Scenario, SurfaceSpec, edge_scenario, gripper_scenario, pu
 __all__ = [
     "EDGE_HIDDEN_EFFECTS",
     "EDGE_ROUGH",
+    "GRIPPER_HIDDEN_EFFECTS",
+    "PUSH_HIDDEN_EFFECTS",
     "PUSH_RECT",
     "PUSH_RECT_MASS",
     "Trajectory",
     "draw_edge_effect",
+    "draw_gripper_effect",
+    "draw_push_effect",
     "edge_mu_field",
     "edge_sweep_trajectory",
     "edge_trajectory",
     "gripper_trajectory",
     "observe",
     "push_path",
+    "push_sweep_trajectory",
     "push_trajectory",
     "simulate",
 ]
@@ -365,6 +370,7 @@ def gripper_trajectory(
     grip_force_limit: float = 20.0,
     extensions: Sequence[ModelExtension] = (),
     rng: np.random.Generator | None = None,
+    variation: float = 0.03,
 ) -> Trajectory:
     """Paper Fig. 4 trajectory: triangle rattling between closing jaws, ends grasped.
 
@@ -375,12 +381,13 @@ def gripper_trajectory(
     the lower jaw while sliding +x and turning its lowest edge flat (vertex, then sliding edge
     contact); a rattle phase of periodic force and moment drives it between the jaws (vertex
     and edge contacts, stick-slip); the final phase fades the force out and applies a steady
-    moment that wedges the triangle between both jaws (grasped, sticking).
+    moment that wedges the triangle between both jaws (grasped, sticking). `variation`: the
+    seeded relative jitter of the force / moment amplitudes and periods (+-3 % by default).
     """
     sc = scenario if scenario is not None else gripper_scenario()
     gen = rng if rng is not None else np.random.default_rng(seed)
     prof = np.random.default_rng([seed, 11])
-    jitter = 1.0 + 0.03 * prof.uniform(-1.0, 1.0, size=6)
+    jitter = 1.0 + variation * prof.uniform(-1.0, 1.0, size=6)
     model = PlanarModel(sc, extensions, active_set=True)
     dt = sc.dt
     n = round(duration / dt) + 1
@@ -544,3 +551,197 @@ def push_trajectory(
         mu_pair[model.surface_pair] = mu_surface
     obs, env_obs = observe(sc, q, env, gen, extensions)
     return Trajectory(sc, t, q, v, u, env, modes, ln, lt, mus, mu_pair, obs, env_obs)
+
+
+def push_sweep_trajectory(
+    seed: int = 0,
+    *,
+    duration: float = 6.0,
+    scenario: Scenario | None = None,
+    mu_pusher: float = 0.25,
+    mu_surface: float = 0.25,
+    extensions: Sequence[ModelExtension] = (),
+) -> Trajectory:
+    """A long push over the table with stops (discrepancy analysis data), truth by
+    `PlanarModel.step`.
+
+    Scenario default: the MIT `rect1` block (`PUSH_RECT`, `PUSH_RECT_MASS`), estimated
+    support pair ``surface`` (candidates 0.1 / 0.25 / 0.4), 1 mm / 0.01 rad pose noise. The
+    block starts at rest at the origin; the disk pusher starts 5 mm behind side 0 and drives
+    it along +y in strokes: each stroke at a seeded speed of 0.05-0.15 m/s for 0.5-0.9 s
+    (ramps of 0.1 s), then a stop of 0.25-0.45 s in which the block coasts off the pusher
+    and stops on the support friction; the next stroke catches it up. The pusher's lateral
+    position follows the block's centre plus a seeded sinusoidal offset of 0.5-1.5 cm
+    (closed loop on the true state: the pusher stays on the side while the off-centre
+    contact turns the block one way and back, at most ~0.8 rad/s; a first version with
+    0.1-0.25 m/s strokes and 1-2.5 cm offsets spun the block at up to 3.5 rad/s with pusher
+    and support friction 0.1, and the filter lost track of the clean run: -3400 nats against
+    ~+7800). True friction: `mu_pusher` (pusher pair),
+    `mu_surface` (support). u = 0. Hidden `extensions` act in the physics and the sensor.
+    """
+    sc = scenario
+    if sc is None:
+        sc = push_scenario(PUSH_RECT, mass=PUSH_RECT_MASS, support_pair="surface")
+    if sc.kind != "push":
+        msg = f"push_sweep_trajectory needs a 'push' scenario, got {sc.kind!r}"
+        raise ModelError(msg)
+    rng = np.random.default_rng([seed, 21])
+    model = PlanarModel(sc, extensions, active_set=True)
+    dt = sc.dt
+    n = round(duration / dt) + 1
+    t = np.arange(n, dtype=np.float64) * dt
+    speed = np.zeros(n)
+    t0 = 0.0
+    while t0 < duration:
+        v, on = float(rng.uniform(0.05, 0.15)), float(rng.uniform(0.5, 0.9))
+        ramp_up = _smoothstep(t, t0, t0 + 0.1)
+        speed += v * ramp_up * (1.0 - _smoothstep(t, t0 + on, t0 + on + 0.1))
+        t0 += on + 0.1 + float(rng.uniform(0.25, 0.45))
+    amp = float(rng.uniform(0.005, 0.015)) * (1.0 if rng.random() < 0.5 else -1.0)
+    period = float(rng.uniform(2.0, 3.5))
+    offset = amp * np.sin(2.0 * np.pi * t / period)
+    verts = np.asarray(sc.body.vertices, dtype=np.float64)
+    y_back = float(verts[:, 1].min()) - sc.pusher_radius - 0.005
+    q = np.zeros((n, 3))
+    v_ = np.zeros((n, 3))
+    env = np.zeros((n, 2))
+    modes = np.zeros((n, sc.n_contacts), dtype=np.int64)
+    ln = np.zeros((n, sc.n_contacts))
+    lt = np.zeros((n, sc.n_contacts))
+    mus = np.zeros((n, sc.n_contacts))
+    u = np.zeros((n, 3))
+    env[0] = (0.0, y_back)
+    kin0 = contact_kinematics(sc, q[0], env[0])
+    modes[0] = np.where(kin0.phi > 1e-9, int(Mode.SEPARATED), int(Mode.STICKING))
+    mus[0] = mu_pusher
+    for k in range(n - 1):
+        # lateral: follow the block's centre plus the offset, at most 0.1 m/s
+        dx = float(np.clip(q[k, 0] + offset[k] - env[k, 0], -0.1 * dt, 0.1 * dt))
+        env[k + 1] = (env[k, 0] + dx, env[k, 1] + speed[k] * dt)
+        r = model.step(
+            State(q[k], v_[k]), u[k], env[k], env[k + 1], mu=mu_pusher, mu_surface=mu_surface
+        )
+        q[k + 1], v_[k + 1] = r.q, r.v
+        modes[k + 1], ln[k + 1], lt[k + 1], mus[k + 1] = r.modes, r.ln, r.lt, r.mu
+    mu_pair = np.full(len(sc.friction.pairs), np.nan)
+    for pc in sc.potential_contacts:
+        mu_pair[pc.pair] = mu_pusher
+    if model.surface_pair is not None:
+        mu_pair[model.surface_pair] = mu_surface
+    obs, env_obs = observe(sc, q, env, np.random.default_rng([seed, 22]), extensions)
+    return Trajectory(sc, t, q, v_, u, env, modes, ln, lt, mus, mu_pair, obs, env_obs)
+
+
+GRIPPER_HIDDEN_EFFECTS: tuple[str, ...] = (
+    "viscous_damping",
+    "mass_scale",
+    "input_gain",
+    "sensor_delay",
+    "sensor_bias",
+)
+"""Effects of the contract vocabulary observable in gripper data (`gripper_trajectory`
+with `variation`; horizontal plane, frictionless support, jaws as the only contacts).
+
+In: viscous_damping (the triangle moves freely between the jaws for most of the run, at
+0.1-0.3 m/s under forces of ~1 m/s^2 x m: a drag of 1.5-4 N s/m per kg is a 10-60 %
+change of the net force); mass_scale / input_gain (the known wrench drives the free motion;
+k and 1 / k predict the same motion: no gravity, contact impulses scale with the mass, so
+the pair is one class, `discrepancy.analysis.EQUIVALENT`); sensor_delay (the jaws, a known
+input, move and hit the triangle: a lag shows at every impact); sensor_bias (y and yaw: the
+jaws are the lines y = const and a flat edge on a jaw fixes the yaw; x, along the jaws, is
+not observable and is drawn within one noise std). Out: friction_scale (the filter
+estimates the one jaw coefficient over its candidates 0.1 / 0.4 / 0.7; a factor on it is a
+different value of that estimated coefficient, k x 0.4 = 0.5-0.64 lies between candidates
+and is absorbed); friction_patch (no filter path, `discrepancy.effects`); the support
+effects (the gripper's support is frictionless: no support friction to change)."""
+
+PUSH_HIDDEN_EFFECTS: tuple[str, ...] = (
+    "sensor_delay",
+    "sensor_bias",
+    "support_pressure",
+    "support_concentration",
+)
+"""Effects of the contract vocabulary observable in push data (`push_sweep_trajectory`:
+position-controlled pusher, no applied wrench, support friction estimated by the filter).
+
+In: sensor_delay (the pusher, a known input, starts and stops the block); sensor_bias (y,
+the push direction: the block's back side rests on the known pusher; x and yaw are drawn
+within one noise std: a point contact on a flat side fixes neither); support_pressure and
+support_concentration (the pressure distribution sets the frictional moment, c = m_max /
+f_max: rim-heavy +10-50 %, centre-heavy -30-80 %, which sets how far the off-centre pusher
+turns the block). Out: viscous_damping (at 0.05-0.15 m/s the pusher's position sets the
+motion; the block coasts off the pusher only with support mu 0.1, by 2-10 mm, and a drag of
+3.7 N s/m per kg shortens that by 1-4 mm; on translation only, it otherwise acts like a
+change of the limit surface, i.e. of the pressure effects; a first version of the data
+with 0.1-0.25 m/s strokes hid b = 3.1 N s/m and the fit found no gain at b = 0.59 or 1.26);
+mass_scale and input_gain (u = 0 and the support force scales with the mass: the pusher's
+position, not a force, drives the block; neither changes the motion: their filter scores
+equal the nominal model's to 0.1 nats); friction_scale and support_friction (the filter
+estimates the pusher and the support coefficients over their candidates 0.1 / 0.25 / 0.4;
+a factor or a new support value is a different value of these estimated coefficients);
+friction_patch (no filter path)."""
+
+
+def _factor(rng: np.random.Generator) -> float:
+    f = float(rng.uniform(1.25, 1.6))
+    return f if rng.random() < 0.5 else 1.0 / f
+
+
+def _sign(rng: np.random.Generator) -> float:
+    return 1.0 if rng.random() < 0.5 else -1.0
+
+
+def draw_gripper_effect(
+    rng: np.random.Generator, effect: str | None = None, *, scenario: Scenario | None = None
+) -> ModelExtension:
+    """A hidden effect of realistic size for the gripper (uniform over
+    `GRIPPER_HIDDEN_EFFECTS` unless given; scenario default `gripper_scenario()`).
+
+    viscous_damping: 1.5-4 N s/m per kg; mass_scale, input_gain: 1.25-1.6 or its inverse;
+    sensor_delay: 30-80 ms; sensor_bias: y +-1.5-3 position noise stds (3-6 mm), yaw
+    +-1.5-3 yaw noise stds (0.03-0.06 rad), x within +-1 std (along the jaws).
+    """
+    sc = scenario if scenario is not None else gripper_scenario()
+    name = effect if effect is not None else str(rng.choice(GRIPPER_HIDDEN_EFFECTS))
+    if name in ("mass_scale", "input_gain"):
+        return ModelExtension.make(name, factor=_factor(rng))
+    if name == "viscous_damping":
+        return ModelExtension.make(name, b=sc.body.mass * float(rng.uniform(1.5, 4.0)))
+    if name == "sensor_delay":
+        return ModelExtension.make(name, seconds=float(rng.uniform(0.03, 0.08)))
+    if name == "sensor_bias":
+        sp, sy = sc.noise.position, sc.noise.yaw
+        y = sp * float(rng.uniform(1.5, 3.0)) * _sign(rng)
+        yaw = sy * float(rng.uniform(1.5, 3.0)) * _sign(rng)
+        return ModelExtension.make(name, x=sp * float(rng.uniform(-1.0, 1.0)), y=y, yaw=yaw)
+    msg = f"no gripper draw for effect {name!r}; valid: {list(GRIPPER_HIDDEN_EFFECTS)}"
+    raise ModelError(msg)
+
+
+def draw_push_effect(
+    rng: np.random.Generator, effect: str | None = None, *, scenario: Scenario | None = None
+) -> ModelExtension:
+    """A hidden effect of realistic size for the push (uniform over `PUSH_HIDDEN_EFFECTS`
+    unless given; scenario default: that of `push_sweep_trajectory`).
+
+    sensor_delay: 30-80 ms; sensor_bias: y +-1.5-3 position noise stds (1.5-3 mm), x within
+    +-1 std, yaw within +-1 yaw std;
+    support_pressure: rim_fraction 0.3-0.8; support_concentration: centre_fraction 0.3-0.8.
+    """
+    sc = scenario
+    if sc is None:
+        sc = push_scenario(PUSH_RECT, mass=PUSH_RECT_MASS, support_pair="surface")
+    name = effect if effect is not None else str(rng.choice(PUSH_HIDDEN_EFFECTS))
+    if name == "sensor_delay":
+        return ModelExtension.make(name, seconds=float(rng.uniform(0.03, 0.08)))
+    if name == "sensor_bias":
+        sp, sy = sc.noise.position, sc.noise.yaw
+        y = sp * float(rng.uniform(1.5, 3.0)) * _sign(rng)
+        x = sp * float(rng.uniform(-1.0, 1.0))
+        return ModelExtension.make(name, x=x, y=y, yaw=sy * float(rng.uniform(-1.0, 1.0)))
+    if name == "support_pressure":
+        return ModelExtension.make(name, rim_fraction=float(rng.uniform(0.3, 0.8)))
+    if name == "support_concentration":
+        return ModelExtension.make(name, centre_fraction=float(rng.uniform(0.3, 0.8)))
+    msg = f"no push draw for effect {name!r}; valid: {list(PUSH_HIDDEN_EFFECTS)}"
+    raise ModelError(msg)

@@ -7,7 +7,11 @@ unimodal along one parameter at this resolution, up to single points where the f
 track: the score of a mis-specified model is rough, e.g. with a hidden 75 ms sensor delay
 the training score was +3016 nats nominal, -2334 at 20 ms, +3271 at 50 ms, +6142 at 90 ms;
 a parameter the data do not resolve, e.g. a sensor bias along the edge, leaves the score
-unchanged). When the best grid point beats the starting value by less than the screening
+unchanged; when the first point on each side scores as the start value to `NO_EFFECT`
+nats, i.e. to rounding, the parameter does not reach the filter on these data, e.g.
+input_gain with zero inputs or a sensor bias along the gripper's jaws, and the walk stops
+there). When the best
+grid point beats the starting value by less than the screening
 margin the effect is not refined (it cannot be named anyway: `analysis`). Otherwise, when
 the best grid point is the last one evaluated on its side, the bound of the range is
 evaluated too (an optimum at the bound is flagged, `FitResult.at_bound`, never named); then
@@ -52,6 +56,9 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+
+NO_EFFECT = 1e-3
+"""nats: score changes up to this are rounding (a parameter without effect on the data)."""
 FitSteps = Generator[list[Hypothesis], list[float], T]
 """A fit as a generator: yields hypotheses to score, receives their scores, returns T."""
 
@@ -177,6 +184,7 @@ def fit_1d_steps(
         sorted(x for x in sp.grid if sp.to_u(x) > u_base),
     ]
     nxt, top, misses = [0, 0], [base[1], base[1]], [0, 0]
+    first = True
     while True:  # the grid outwards, both sides in step
         batch = [(s, sides[s][nxt[s]]) for s in (0, 1) if nxt[s] < len(sides[s])]
         if not batch:
@@ -187,6 +195,9 @@ def fit_1d_steps(
             misses[s] = 0 if val > top[s] else misses[s] + 1
             top[s] = max(top[s], val)
             nxt[s] = nxt[s] + 1 if misses[s] < 2 else len(sides[s])
+        if first and all(abs(v - base[1]) <= NO_EFFECT for v in vals):
+            break  # the parameter does not reach the score on these data (module docstring)
+        first = False
 
     def best() -> tuple[float, float]:
         u = max(pts, key=lambda k: pts[k])

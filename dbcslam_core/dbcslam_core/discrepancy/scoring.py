@@ -32,6 +32,7 @@ from types import TracebackType
 import numpy as np
 from numpy.typing import NDArray
 
+from ..angles import wrap_angle
 from ..dynamics import PlanarModel, State
 from ..errors import DbcSlamError, ModelError
 from ..extensions import ModelExtension
@@ -272,6 +273,9 @@ def filter_pass(cfg: ScoreConfig, hyp: Hypothesis, run: Run, seed: int) -> RunTr
     u = _delayed(run.u, shift)
     env = _delayed(run.env, shift)
     obs = np.array(run.obs, dtype=np.float64) - bias[None, :nq]
+    if nq == 3:
+        # a yaw bias moves readings near +-pi across the wrap: back into [-pi, pi)
+        obs[:, 2] = wrap_angle(obs[:, 2])
     ll = np.full(n, np.nan)
     q = np.full((n, nq), np.nan)
     v = np.full((n, nq), np.nan)
