@@ -86,6 +86,31 @@ def _lu_solve_inplace(a: FloatArray, b: FloatArray, r: int, m: int) -> bool:
     return True
 
 
+def _solve_rows(  # noqa: PLR0917 - numba helper (inlined): positional arrays
+    grow: FloatArray,
+    frow: FloatArray,
+    x: FloatArray,
+    amat: FloatArray,
+    r: int,
+    nv: int,
+    eps: float,
+) -> bool:
+    """The equality system of r rows in place: amat = G F^T + eps I (rows G = grow, F =
+    frow, (r, nv) each), x[:, 1:] = -G next to the gap column x[:, 0], then the LU solve of
+    amat x = x (`_lu_solve_inplace`); False when singular. Shared by the reduced-dynamics
+    kernel here and the fused entry kernel of `step_kernels`."""
+    for i in range(r):
+        for j in range(nv):
+            x[i, 1 + j] = -grow[i, j]
+        for j in range(r):
+            s = 0.0
+            for k in range(nv):
+                s += grow[i, k] * frow[j, k]
+            amat[i, j] = s
+        amat[i, i] += eps
+    return _lu_solve_inplace(amat, x, r, 1 + nv)
+
+
 def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword-only args
     md: IntArray,
     vf: FloatArray,
@@ -255,16 +280,7 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
                             frow[r, i] = mw[g, n_c + c, i]
                         x[r, 0] = -at[c]
                         r += 1
-                for i in range(r):
-                    for j in range(nv):
-                        x[i, 1 + j] = -grow[i, j]
-                    for j in range(r):
-                        s = 0.0
-                        for k in range(nv):
-                            s += grow[i, k] * frow[j, k]
-                        amat[i, j] = s
-                    amat[i, i] += eps
-                if not _lu_solve_inplace(amat, x, r, 1 + nv):
+                if not _solve_rows(grow, frow, x, amat, r, nv, eps):
                     n_bad += 1
                 for j in range(r):
                     for i in range(nv):
@@ -393,6 +409,7 @@ def _gaussian_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
 
 if AVAILABLE:
     _lu_solve_inplace = numba.njit(cache=True, nogil=True)(_lu_solve_inplace)
+    _solve_rows = numba.njit(cache=True, nogil=True, inline="always")(_solve_rows)
     _kernel = numba.njit(cache=True, nogil=True)(_kernel)
     _gaussian_kernel = numba.njit(cache=True, nogil=True)(_gaussian_kernel)
 

@@ -295,16 +295,7 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                                     frow[r, i] = mw[fm, n_c + c, i]
                                 x[r, 0] = -at[c]
                                 r += 1
-                        for i in range(r):
-                            for j in range(nv):
-                                x[i, 1 + j] = -grow[i, j]
-                            for j in range(r):
-                                s = 0.0
-                                for k in range(nv):
-                                    s += grow[i, k] * frow[j, k]
-                                amat[i, j] = s
-                            amat[i, i] += eps
-                        if not kernels._lu_solve_inplace(amat, x, r, 1 + nv):
+                        if not kernels._solve_rows(grow, frow, x, amat, r, nv, eps):
                             n_bad += 1
                         for j in range(r):
                             for i in range(nv):
