@@ -111,6 +111,62 @@ def _solve_rows(  # noqa: PLR0917 - numba helper (inlined): positional arrays
     return _lu_solve_inplace(amat, x, r, 1 + nv)
 
 
+def _contact_violation(  # noqa: PLR0917 - numba helper (inlined): positional scalars
+    mc: int,
+    gr: float,
+    vtc: float,
+    lnc: float,
+    ltc: float,
+    mu_c: float,
+    k: int,
+    groups: tuple[FloatArray, FloatArray, FloatArray],
+    acc: tuple[float, float],
+    scales: tuple[float, float, float],
+) -> tuple[float, float]:
+    """One contact's terms of the violation score, added to acc = (v_sq, imp) in the order
+    of the original sums: the velocity a mode forbids (separating gap rate, slip against a
+    sliding direction) over scales[0], a negative normal impulse over scales[1] (magnitude
+    floor scales[2]); a sticking contact adds its friction, cap and magnitude to its obstacle
+    group k in groups = (lt_g, cap_g, mag_g). Shared by `_kernel` and
+    `step_kernels._entry_kernel`."""
+    v_sq, imp = acc
+    sc_velocity, sc_impulse, sc_floor = scales
+    v_neg = 0.0
+    if mc == _SEP:
+        v_neg = -gr
+    elif mc == _POS:
+        v_neg = -vtc
+    elif mc == _NEG:
+        v_neg = vtc
+    if v_neg > 0.0:
+        v_sq += (v_neg / sc_velocity) ** 2
+    mag = abs(lnc) + abs(ltc) + sc_floor
+    if mc != _SEP and lnc < 0.0:
+        imp += (-lnc / mag / sc_impulse) ** 2
+    if mc == _STICK:
+        groups[0][k] += ltc
+        groups[1][k] += mu_c * lnc
+        groups[2][k] += mag - sc_floor
+    return v_sq, imp
+
+
+def _group_violation(
+    imp: float,
+    n_groups: int,
+    groups: tuple[FloatArray, FloatArray, FloatArray],
+    sc_impulse: float,
+    sc_floor: float,
+) -> float:
+    """imp plus the friction-cone violation of each obstacle group's sticking contacts
+    (|sum lt| above sum mu ln), in group order."""
+    lt_g, cap_g, mag_g = groups
+    for k in range(n_groups):
+        viol = abs(lt_g[k]) - cap_g[k]
+        if viol > 0.0:
+            imp += (viol / (mag_g[k] + sc_floor) / sc_impulse) ** 2
+    return imp
+
+
 def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword-only args
     md: IntArray,
     vf: FloatArray,
@@ -324,29 +380,19 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
             gap_rate[m, c] = gr
             vt[m, c] = vtc
             mc = md[g, c]
-            v_neg = 0.0
-            if mc == _SEP:
-                v_neg = -gr
-            elif mc == _POS:
-                v_neg = -vtc
-            elif mc == _NEG:
-                v_neg = vtc
-            if v_neg > 0.0:
-                v_sq += (v_neg / sc_velocity) ** 2
-            lnc = ln[m, c]
-            ltc = lt[m, c]
-            mag = abs(lnc) + abs(ltc) + sc_floor
-            if mc != _SEP and lnc < 0.0:
-                imp += (-lnc / mag / sc_impulse) ** 2
-            if mc == _STICK:
-                k = group[c]
-                lt_g[k] += ltc
-                cap_g[k] += mu_rows[u, c] * lnc
-                mag_g[k] += mag - sc_floor
-        for k in range(n_groups):
-            viol = abs(lt_g[k]) - cap_g[k]
-            if viol > 0.0:
-                imp += (viol / (mag_g[k] + sc_floor) / sc_impulse) ** 2
+            v_sq, imp = _contact_violation(
+                mc,
+                gr,
+                vtc,
+                ln[m, c],
+                lt[m, c],
+                mu_rows[u, c],
+                group[c],
+                (lt_g, cap_g, mag_g),
+                (v_sq, imp),
+                (sc_velocity, sc_impulse, sc_floor),
+            )
+        imp = _group_violation(imp, n_groups, (lt_g, cap_g, mag_g), sc_impulse, sc_floor)
         score[m] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
     return n_bad
 
@@ -410,6 +456,8 @@ def _gaussian_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
 if AVAILABLE:
     _lu_solve_inplace = numba.njit(cache=True, nogil=True)(_lu_solve_inplace)
     _solve_rows = numba.njit(cache=True, nogil=True, inline="always")(_solve_rows)
+    _contact_violation = numba.njit(cache=True, nogil=True, inline="always")(_contact_violation)
+    _group_violation = numba.njit(cache=True, nogil=True, inline="always")(_group_violation)
     _kernel = numba.njit(cache=True, nogil=True)(_kernel)
     _gaussian_kernel = numba.njit(cache=True, nogil=True)(_gaussian_kernel)
 
@@ -647,9 +695,16 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                         lp = -np.inf
                 n_top = _insert_desc(top_v, top_i, n_top, n_keep, lp, t)
         n_valid, offset = _emit_row(
-            p, (top_v, top_i, e, n_top), order, ranks, threshold, compact,
-            (out_modes, out_logp, out_valid), (flat_modes, flat_logp, counts), offset,
-        )  # fmt: skip
+            p,
+            (top_v, top_i, e, n_top),
+            order,
+            ranks,
+            threshold,
+            compact,
+            (out_modes, out_logp, out_valid),
+            (flat_modes, flat_logp, counts),
+            offset,
+        )
         k_used = max(k_used, n_valid)
     return k_used
 

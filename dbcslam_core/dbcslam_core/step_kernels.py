@@ -344,29 +344,21 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                         for i in range(nv):
                             st += jt[p, c, i] * v_next[n, f, i]
                         vtc = st - vte[p, c]
-                    v_neg = 0.0
-                    if mc == _SEP:
-                        v_neg = -gr
-                    elif mc == _POS:
-                        v_neg = -vtc
-                    elif mc == _NEG:
-                        v_neg = vtc
-                    if v_neg > 0.0:
-                        v_sq += (v_neg / sc_velocity) ** 2
-                    lnc = ln[n, f, c]
-                    ltc = lt[n, f, c]
-                    mag = abs(lnc) + abs(ltc) + sc_floor
-                    if mc != _SEP and lnc < 0.0:
-                        imp += (-lnc / mag / sc_impulse) ** 2
-                    if mc == _STICK:
-                        k = group[c]
-                        lt_g[k] += ltc
-                        cap_g[k] += mu_tab[u, c] * lnc
-                        mag_g[k] += mag - sc_floor
-                for k in range(n_groups):
-                    viol = abs(lt_g[k]) - cap_g[k]
-                    if viol > 0.0:
-                        imp += (viol / (mag_g[k] + sc_floor) / sc_impulse) ** 2
+                    v_sq, imp = kernels._contact_violation(
+                        mc,
+                        gr,
+                        vtc,
+                        ln[n, f, c],
+                        lt[n, f, c],
+                        mu_tab[u, c],
+                        group[c],
+                        (lt_g, cap_g, mag_g),
+                        (v_sq, imp),
+                        (sc_velocity, sc_impulse, sc_floor),
+                    )
+                imp = kernels._group_violation(
+                    imp, n_groups, (lt_g, cap_g, mag_g), sc_impulse, sc_floor
+                )
                 score[n, f] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
                 # -- velocity noise covariance R diag(sig2) R^T + c diag(sig2) ---------------
                 for i in range(nv):
@@ -554,9 +546,23 @@ def _row_evidence(  # noqa: PLR0917 - numba helper (inlined): positional arrays
         for f in range(n_f):
             if has_obs and not (f > 0 and same):  # (else: log p(o) of f = 0)
                 log_pred = _gaussian_at(
-                    p, n, f, q, v_h, cov, obs_value, angular, s_diag, dt, low, z, y,
-                    False, vm, vc,
-                )  # fmt: skip
+                    p,
+                    n,
+                    f,
+                    q,
+                    v_h,
+                    cov,
+                    obs_value,
+                    angular,
+                    s_diag,
+                    dt,
+                    low,
+                    z,
+                    y,
+                    False,
+                    vm,
+                    vc,
+                )
             lj[e * n_f + f] = log_alpha[n, f] + log_pred if has_obs else log_alpha[n, f]
 
 
@@ -806,9 +812,23 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         f_star = pick % n_f
         if has_obs:  # the proposal's posterior of v' of the drawn (entry, f)
             _gaussian_at(
-                p, n_star, f_star, q, v_h, cov, obs_value, angular, s_diag, dt, low, z, y,
-                True, vm, vc,
-            )  # fmt: skip
+                p,
+                n_star,
+                f_star,
+                q,
+                v_h,
+                cov,
+                obs_value,
+                angular,
+                s_diag,
+                dt,
+                low,
+                z,
+                y,
+                True,
+                vm,
+                vc,
+            )
         else:
             for i in range(nv):
                 y[i] = 0.0
@@ -816,12 +836,8 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                 for j in range(nv):
                     vc[i, j] = cov[n_star, f_star, i, j]
         _sample_state(p, vm, vc, y, v_h, (n_star, f_star), noise, q, a, low, corr, v_new, q_new)
-        _row_log_posterior(
-            p, s0, n_e, md, v_new, v_h, cov, log_alpha, shared, a, low, corr, lpost
-        )  # fmt: skip
-        _row_marginals(
-            p, s0, n_e, md, lpost, pair_mask, fric_post, modes_post, marg_post, pair_in
-        )  # fmt: skip
+        _row_log_posterior(p, s0, n_e, md, v_new, v_h, cov, log_alpha, shared, a, low, corr, lpost)
+        _row_marginals(p, s0, n_e, md, lpost, pair_mask, fric_post, modes_post, marg_post, pair_in)
 
 
 def _map_pending_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
