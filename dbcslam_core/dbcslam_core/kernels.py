@@ -806,6 +806,47 @@ def prepare_tuples(mg: FloatArray, threshold: float) -> tuple[IntArray, FloatArr
     return order, lsp, n_live
 
 
+def _run_enumeration(
+    arrays: tuple[
+        IntArray, FloatArray, IntArray, IntArray, FloatArray | None, tuple[IntArray, ...]
+    ],
+    numbers: tuple[float, int, int, float],
+    padded: tuple[IntArray, FloatArray, npt.NDArray[np.bool_]],
+    flat: tuple[IntArray, FloatArray, IntArray],
+    *,
+    compact: bool,
+) -> int:
+    """One call of `_enumerate_kernel` for `enumerate_tuples` / `enumerate_compact`:
+    arrays = (order, lsp, n_live, ranks, phi or None, rules), numbers = (threshold, n_keep,
+    pre_k, both_tolerance); the outputs go to `padded` (modes, log prior, valid) or, with
+    `compact`, to `flat` (modes, log prior, counts). Returns K, the largest valid count."""
+    order, lsp, n_live, ranks, phi, rules = arrays
+    threshold, n_keep, pre_k, both_tolerance = numbers
+    n_p, n_c, _ = lsp.shape
+    has_phi = phi is not None
+    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
+    return int(
+        _enumerate_kernel(
+            np.ascontiguousarray(order, dtype=np.int64),
+            np.ascontiguousarray(lsp, dtype=np.float64),
+            float(threshold),
+            np.ascontiguousarray(ranks, dtype=np.int64),
+            int(n_keep),
+            int(pre_k),
+            ph,
+            has_phi,
+            rules[0],
+            rules[1],
+            rules[2],
+            float(both_tolerance),
+            np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
+            *padded,
+            compact,
+            *flat,
+        )
+    )
+
+
 def enumerate_tuples(
     order: IntArray,
     lsp: FloatArray,
@@ -830,29 +871,13 @@ def enumerate_tuples(
     out_modes = np.zeros((n_p, n_keep, n_c), dtype=np.int64)
     out_logp = np.full((n_p, n_keep), -np.inf)
     out_valid = np.zeros((n_p, n_keep), dtype=np.bool_)
-    has_phi = phi is not None
-    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
-    k_used = _enumerate_kernel(
-        np.ascontiguousarray(order, dtype=np.int64),
-        np.ascontiguousarray(lsp, dtype=np.float64),
-        float(threshold),
-        np.ascontiguousarray(ranks, dtype=np.int64),
-        int(n_keep),
-        int(pre_k),
-        ph,
-        has_phi,
-        rules[0],
-        rules[1],
-        rules[2],
-        float(both_tolerance),
-        np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
-        out_modes,
-        out_logp,
-        out_valid,
-        False,
-        np.zeros((0, n_c), dtype=np.int64),
-        np.zeros(0),
-        np.zeros(0, dtype=np.int64),
+    flat = (np.zeros((0, n_c), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=np.int64))
+    k_used = _run_enumeration(
+        (order, lsp, n_live, ranks, phi, rules),
+        (threshold, n_keep, pre_k, both_tolerance),
+        (out_modes, out_logp, out_valid),
+        flat,
+        compact=False,
     )
     return out_modes[:, :k_used], out_logp[:, :k_used], out_valid[:, :k_used]
 
@@ -877,29 +902,17 @@ def enumerate_compact(
     flat_modes = np.empty((n_p * n_keep, n_c), dtype=np.int64)
     flat_logp = np.empty(n_p * n_keep)
     counts = np.empty(n_p, dtype=np.int64)
-    has_phi = phi is not None
-    ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
-    k_used = _enumerate_kernel(
-        np.ascontiguousarray(order, dtype=np.int64),
-        np.ascontiguousarray(lsp, dtype=np.float64),
-        float(threshold),
-        np.ascontiguousarray(ranks, dtype=np.int64),
-        int(n_keep),
-        int(pre_k),
-        ph,
-        has_phi,
-        rules[0],
-        rules[1],
-        rules[2],
-        float(both_tolerance),
-        np.minimum(n_live, ranks[-1] + 1),
+    padded = (
         np.zeros((0, n_keep, n_c), dtype=np.int64),
         np.zeros((0, n_keep)),
         np.zeros((0, n_keep), dtype=np.bool_),
-        True,
-        flat_modes,
-        flat_logp,
-        counts,
+    )
+    k_used = _run_enumeration(
+        (order, lsp, n_live, ranks, phi, rules),
+        (threshold, n_keep, pre_k, both_tolerance),
+        padded,
+        (flat_modes, flat_logp, counts),
+        compact=True,
     )
     n = int(counts.sum())
     return flat_modes[:n], flat_logp[:n], counts, int(k_used)
