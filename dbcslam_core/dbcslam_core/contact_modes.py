@@ -19,6 +19,7 @@ import numpy.typing as npt
 
 from dbcslam_core import kernels
 from dbcslam_core.errors import SolverError
+from dbcslam_core.row_pool import RowPool
 
 __all__ = [
     "DEFAULT_BACKEND",
@@ -983,9 +984,12 @@ def enumerate_live(
     layout: ContactLayout | None = None,
     phi: npt.ArrayLike | None = None,
     max_tuples: int = 4096,
+    pool: RowPool | None = None,
+    work: dict[str, npt.NDArray[Any]] | None = None,
 ) -> LiveHypotheses:
     """`enumerate_hypotheses` (same hypotheses, same order) as the list of the valid ones
-    (compiled without the padded arrays when numba is available)."""
+    (compiled without the padded arrays when numba is available; on the threads of pool,
+    with the reusable scratch buffers of work)."""
     mg = np.asarray(marginals, dtype=np.float64)
     if not kernels.AVAILABLE:
         hyp = enumerate_hypotheses(
@@ -999,9 +1003,9 @@ def enumerate_live(
         msg = f"marginals must be (particles, contacts, {N_MODES}), got shape {mg.shape}"
         raise SolverError(msg)
     args, kwargs = _compiled_enumeration_args(
-        mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples
+        mg, threshold, max_hypotheses, layout=layout, phi=phi, max_tuples=max_tuples, pool=pool
     )
-    modes, logp, counts, width = kernels.enumerate_compact(*args, **kwargs)
+    modes, logp, counts, width = kernels.enumerate_compact(*args, **kwargs, pool=pool, work=work)
     return LiveHypotheses(modes, logp, counts, width)
 
 
@@ -1040,12 +1044,14 @@ def _compiled_enumeration_args(
     layout: ContactLayout | None,
     phi: npt.ArrayLike | None,
     max_tuples: int,
+    pool: RowPool | None = None,
 ) -> tuple[tuple[IntArray, FloatArray], dict[str, Any]]:
-    """The inputs of `kernels.enumerate_tuples` / `enumerate_compact` for marginals mg."""
+    """The inputs of `kernels.enumerate_tuples` / `enumerate_compact` for marginals mg (the
+    mode ordering on the threads of pool)."""
     n_p, n_c, _ = mg.shape
     # (P, C, 4) modes by descending probability (stable, as the numpy path), their log
     # probabilities (-inf where not live) and the live count per (particle, contact)
-    order, lsp, n_live = kernels.prepare_tuples(mg, threshold)
+    order, lsp, n_live = kernels.prepare_tuples(mg, threshold, pool=pool)
     radix_t = _radix(n_live.max(axis=0).tolist(), max_tuples)
     n_t = math.prod(radix_t)
     pre_k = n_t if n_t * n_c * n_p <= 3_000_000 else min(n_t, 4 * max_hypotheses)

@@ -24,10 +24,13 @@ Units as in `contact_modes.solve_reduced`: velocities m/s (rad/s), impulses N s,
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from dbcslam_core.row_pool import RowPool
 
 __all__ = [
     "AVAILABLE",
@@ -624,19 +627,22 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     flat_modes: IntArray,
     flat_logp: FloatArray,
     counts: IntArray,
+    lo: int,
+    hi: int,
 ) -> int:
-    """Per particle: the joint hypotheses of `contact_modes.enumerate_hypotheses` (top
-    n_keep by log prior among the feasible ones; with pre_k < T the pre_k most probable
-    tuples are screened first, as there); returns the largest valid count. Only the tuples
-    whose digits are live (digit c < n_live[p, c], (P, C), at most the radix) are visited, in
-    tuple order: the others have log prior -inf and cannot be valid (the slots after the
-    visited tuples stay empty: modes 0, log prior -inf, not valid). compact: write only the
-    valid hypotheses, row after row, into flat_modes (>= N, C) and flat_logp, and their count
-    per particle into counts (P,), instead of the padded out_* arrays."""
+    """Per particle p of lo .. hi - 1: the joint hypotheses of
+    `contact_modes.enumerate_hypotheses` (top n_keep by log prior among the feasible ones; with
+    pre_k < T the pre_k most probable tuples are screened first, as there); returns the largest
+    valid count. Only the tuples whose digits are live (digit c < n_live[p, c], (P, C), at most
+    the radix) are visited, in tuple order: the others have log prior -inf and cannot be valid
+    (the slots after the visited tuples stay empty: modes 0, log prior -inf, not valid).
+    compact: write only the valid hypotheses, row after row from row lo n_keep, into flat_modes
+    (>= P n_keep, C) and flat_logp, and their count per particle into counts (P,), instead of
+    the padded out_* arrays."""
     # Long because: a numba entry point with 19 positional arrays (signature and docstring
     # are half of it); the per-particle odometer loop stays in one function so that the
     # scratch arrays are allocated once per call (the row output is already `_emit_row`).
-    n_p, n_c, _ = lsp.shape
+    n_c = lsp.shape[1]
     n_t = ranks.shape[0]
     truncated = pre_k < n_t
     pre_v = np.empty(max(pre_k, 1))
@@ -650,8 +656,8 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     for c in range(n_c - 2, -1, -1):
         stride[c] = stride[c + 1] * (ranks[n_t - 1, c + 1] + 1)
     digit = np.zeros(n_c, dtype=np.int64)
-    offset = 0
-    for p in range(n_p):
+    offset = lo * n_keep
+    for p in range(lo, hi):
         n_pre = 0
         n_top = 0
         # only the tuples of live digits (the others have log prior -inf), in tuple order
@@ -756,16 +762,22 @@ def _emit_row(  # noqa: PLR0917 - numba helper (inlined): positional arrays
     return n_valid, offset
 
 
-def _prepare_kernel(
-    mg: FloatArray, lg: FloatArray, threshold: float, order: IntArray, lsp: FloatArray
-) -> IntArray:
-    """Per (particle, contact): the modes by descending probability (a stable sort, as
-    np.argsort(-mg, kind="stable")) into order, their log probabilities lg (= log mg) in
-    that order into lsp (-inf where not live: below threshold, except the most probable);
-    returns the number of live modes (P, C)."""
-    n_p, n_c, n_m = mg.shape
-    n_live = np.empty((n_p, n_c), dtype=np.int64)
-    for p in range(n_p):
+def _prepare_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    mg: FloatArray,
+    lg: FloatArray,
+    threshold: float,
+    order: IntArray,
+    lsp: FloatArray,
+    n_live: IntArray,
+    lo: int,
+    hi: int,
+) -> None:
+    """Per (particle p of lo .. hi - 1, contact): the modes by descending probability (a
+    stable sort, as np.argsort(-mg, kind="stable")) into order, their log probabilities lg
+    (= log mg) in that order into lsp (-inf where not live: below threshold, except the
+    most probable) and the number of live modes into n_live (P, C)."""
+    _, n_c, n_m = mg.shape
+    for p in range(lo, hi):
         for c in range(n_c):
             for i in range(n_m):  # rank of mode i: larger ones, then equal ones before it
                 v = mg[p, c, i]
@@ -782,7 +794,6 @@ def _prepare_kernel(
                 if live:
                     cnt += 1
             n_live[p, c] = cnt
-    return n_live
 
 
 if AVAILABLE:
@@ -793,17 +804,56 @@ if AVAILABLE:
     _enumerate_kernel = numba.njit(cache=True, nogil=True)(_enumerate_kernel)
 
 
-def prepare_tuples(mg: FloatArray, threshold: float) -> tuple[IntArray, FloatArray, IntArray]:
+def prepare_tuples(
+    mg: FloatArray, threshold: float, *, pool: RowPool | None = None
+) -> tuple[IntArray, FloatArray, IntArray]:
     """Modes per (particle, contact) of the marginals mg (P, C, 4) by descending probability
     (stable): order (P, C, 4), their log probabilities lsp (P, C, 4) (-inf where not live:
-    below threshold, except the most probable) and the live count (P, C)."""
+    below threshold, except the most probable) and the live count (P, C). pool: threads
+    over ranges of particles."""
     mga = np.ascontiguousarray(mg, dtype=np.float64)
     with np.errstate(divide="ignore"):
         lg = np.log(mga)
     order = np.empty(mga.shape, dtype=np.int64)
     lsp = np.empty(mga.shape)
-    n_live = _prepare_kernel(mga, lg, float(threshold), order, lsp)
+    n_live = np.empty(mga.shape[:2], dtype=np.int64)
+    args = (mga, lg, float(threshold), order, lsp, n_live)
+    n_p = mga.shape[0]
+    if pool is None or n_p < 2 * _MIN_PREPARE_ROWS:
+        _prepare_kernel(*args, 0, n_p)
+    else:
+        pool.map(
+            lambda lo, hi: _prepare_kernel(*args, lo, hi),
+            pool.chunks(n_p, min_work=_MIN_PREPARE_ROWS),
+        )
     return order, lsp, n_live
+
+
+def work_buffer(
+    work: dict[str, npt.NDArray[Any]] | None,
+    name: str,
+    shape: tuple[int, ...],
+    dtype: type[np.generic] = np.float64,
+) -> npt.NDArray[Any]:
+    """An uninitialised array of `shape` and `dtype`: a view of the reusable buffer `name` of
+    work (grown when too small), or a new array without work. Reusing the large per-step
+    temporaries avoids the page faults of fresh allocations (glibc maps arrays above 128 kB
+    anew each time; faults of threads writing one fresh array also contend)."""
+    if work is None:
+        return np.empty(shape, dtype=dtype)
+    size = math.prod(shape)
+    buf = work.get(name)
+    if buf is None or buf.size < size or buf.dtype != np.dtype(dtype):
+        buf = np.empty(max(size, 1024) + size // 4, dtype=dtype)
+        work[name] = buf
+    return buf[:size].reshape(shape)
+
+
+_MIN_PREPARE_ROWS = 1024
+"""Fewest particles per thread of the mode ordering (`prepare_tuples`)."""
+_MIN_ENUMERATION_ROWS = 512
+"""Fewest particles (and visited tuples) per thread of the enumeration (smaller problems: the
+calling thread)."""
 
 
 def _run_enumeration(
@@ -815,36 +865,42 @@ def _run_enumeration(
     flat: tuple[IntArray, FloatArray, IntArray],
     *,
     compact: bool,
+    bounds: list[tuple[int, int]] | None = None,
+    pool: RowPool | None = None,
 ) -> int:
     """One call of `_enumerate_kernel` for `enumerate_tuples` / `enumerate_compact`:
     arrays = (order, lsp, n_live, ranks, phi or None, rules), numbers = (threshold, n_keep,
     pre_k, both_tolerance); the outputs go to `padded` (modes, log prior, valid) or, with
-    `compact`, to `flat` (modes, log prior, counts). Returns K, the largest valid count."""
+    `compact`, to `flat` (modes, log prior, counts; rows of range (lo, hi) from row
+    lo n_keep). bounds: row ranges run on the threads of pool (default: all rows at once).
+    Returns K, the largest valid count."""
     order, lsp, n_live, ranks, phi, rules = arrays
     threshold, n_keep, pre_k, both_tolerance = numbers
     n_p, n_c, _ = lsp.shape
     has_phi = phi is not None
     ph = np.zeros((n_p, n_c)) if phi is None else np.ascontiguousarray(phi, dtype=np.float64)
-    return int(
-        _enumerate_kernel(
-            np.ascontiguousarray(order, dtype=np.int64),
-            np.ascontiguousarray(lsp, dtype=np.float64),
-            float(threshold),
-            np.ascontiguousarray(ranks, dtype=np.int64),
-            int(n_keep),
-            int(pre_k),
-            ph,
-            has_phi,
-            rules[0],
-            rules[1],
-            rules[2],
-            float(both_tolerance),
-            np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
-            *padded,
-            compact,
-            *flat,
-        )
+    args = (
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(lsp, dtype=np.float64),
+        float(threshold),
+        np.ascontiguousarray(ranks, dtype=np.int64),
+        int(n_keep),
+        int(pre_k),
+        ph,
+        has_phi,
+        rules[0],
+        rules[1],
+        rules[2],
+        float(both_tolerance),
+        np.minimum(n_live, ranks[-1] + 1),  # (digits beyond the radix are not visited)
+        *padded,
+        compact,
+        *flat,
     )
+    bounds = [(0, n_p)] if bounds is None else bounds
+    if pool is None or len(bounds) == 1:
+        return max(int(_enumerate_kernel(*args, lo, hi)) for lo, hi in bounds)
+    return max(pool.map(lambda lo, hi: int(_enumerate_kernel(*args, lo, hi)), bounds))
 
 
 def enumerate_tuples(
@@ -894,14 +950,24 @@ def enumerate_compact(
     phi: FloatArray | None,
     rules: tuple[IntArray, IntArray, IntArray],
     both_tolerance: float,
+    pool: RowPool | None = None,
+    work: dict[str, npt.NDArray[Any]] | None = None,
 ) -> tuple[IntArray, FloatArray, IntArray, int]:
     """`enumerate_tuples` with the valid hypotheses only, row after row: modes (N, C), log
     prior (N,), the count of each particle (P,) and K, the largest count (the width of the
-    padded layout). No padded (P, K, C) array is built."""
+    padded layout). No padded (P, K, C) array is built. pool: threads over ranges of
+    particles (the same result for any split); work: reusable scratch buffers (the results
+    are new arrays all the same)."""
     n_p, n_c, _ = lsp.shape
-    flat_modes = np.empty((n_p * n_keep, n_c), dtype=np.int64)
-    flat_logp = np.empty(n_p * n_keep)
+    flat_modes = work_buffer(work, "enumeration_modes", (n_p * n_keep, n_c), np.int64)
+    flat_logp = work_buffer(work, "enumeration_logp", (n_p * n_keep,))
     counts = np.empty(n_p, dtype=np.int64)
+    bounds = [(0, n_p)]
+    if pool is not None and pool.threads > 1 and n_p >= 2 * _MIN_ENUMERATION_ROWS:
+        # work of a particle ~ the tuples of live modes it visits
+        visits = np.minimum(n_live, ranks[-1] + 1).prod(axis=1)
+        starts = np.concatenate([[0], np.cumsum(visits)])
+        bounds = pool.chunks(n_p, starts=starts, min_work=_MIN_ENUMERATION_ROWS)
     padded = (
         np.zeros((0, n_keep, n_c), dtype=np.int64),
         np.zeros((0, n_keep)),
@@ -913,6 +979,13 @@ def enumerate_compact(
         padded,
         (flat_modes, flat_logp, counts),
         compact=True,
+        bounds=bounds,
+        pool=pool,
     )
+    if len(bounds) > 1:  # each range wrote from row lo n_keep: close the gaps
+        keep = np.concatenate(
+            [np.arange(lo * n_keep, lo * n_keep + counts[lo:hi].sum()) for lo, hi in bounds]
+        )
+        return flat_modes[keep], flat_logp[keep], counts, int(k_used)
     n = int(counts.sum())
-    return flat_modes[:n], flat_logp[:n], counts, int(k_used)
+    return flat_modes[:n].copy(), flat_logp[:n].copy(), counts, int(k_used)

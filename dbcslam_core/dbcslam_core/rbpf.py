@@ -67,6 +67,7 @@ from dbcslam_core.resampling import (
     make_resampler,
     normalise_log_weights,
 )
+from dbcslam_core.row_pool import RowPool, resolve_threads
 from dbcslam_core.scenario import Disk, Scenario
 from dbcslam_core.transition import (
     TransitionParams,
@@ -155,6 +156,10 @@ class FilterConfig:
       (the copies would need IMM-style mixing for a coefficient that changes between
       steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
       the reduced solves and proposals are as many as without the bank.
+    * threads: threads of the compiled kernels over ranges of rows (`row_pool`): None = the
+      CPUs this process may use, at most 4; 1 = the calling thread only. Small problems
+      (below ~256 live entries per thread) run in the calling thread anyway. The estimates
+      do not depend on it (bit for bit).
     """
 
     particles: int = 500
@@ -190,8 +195,10 @@ class FilterConfig:
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
     friction_bank: bool = False
+    threads: int | None = None
 
     def __post_init__(self) -> None:
+        resolve_threads(self.threads)  # raises ModelError naming the valid values
         if self.particles < 1:
             msg = f"particles must be >= 1, got {self.particles}"
             raise ModelError(msg)
@@ -487,7 +494,8 @@ class DbcSlamFilter:
             impulse_floor=1e-3 * float(self.model.mass_diag[0]),
         )
         self._resampler = make_resampler(cfg.resampler)
-        self._work: dict[str, FloatArray] = {}  # reusable per-step buffers (step_kernels)
+        self._work: dict[str, npt.NDArray[Any]] = {}  # reusable per-step buffers (step_kernels)
+        self._pool = RowPool(cfg.threads)  # threads of the compiled kernels over rows
         prior = scenario.friction.prior
         self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
         self._initialised = False
@@ -843,9 +851,20 @@ class DbcSlamFilter:
             mu_s = (  # (B,) or per bank copy (P B, 1)
                 self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            m_eff, v_free_b = self.model.support_terms(
-                ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
-            )
+            if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+                m_eff, v_free_b = step_kernels.support_terms(
+                    self.model,
+                    ps.q,
+                    ps.v,
+                    inp.u,
+                    mu_s,
+                    velocity_eps=cfg.support_velocity_eps,
+                    pool=self._pool,
+                )
+            else:
+                m_eff, v_free_b = self.model.support_terms(
+                    ps.q, ps.v, inp.u, mu_s, velocity_eps=cfg.support_velocity_eps
+                )
             v_free = np.einsum("pb,pbv->pv", ps.fric, v_free_b)  # transition only
         an = np.einsum("pcv,pv->pc", kin.Jn, v_free) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v_free) - kin.vt_env
@@ -870,6 +889,7 @@ class DbcSlamFilter:
                 free.at,
                 dt=self.dt,
                 params=(tp.gap_scale, tp.far_gap, tp.slip_scale, tp.slide_floor, tp.persistence),
+                pool=self._pool,
             )
         soft = soft_modes(kin.phi, free.an, free.at, self.dt, cfg.transition)
         if cfg.transition.edge_tolerance > 0.0 and self._edge_partners.size:
@@ -895,7 +915,13 @@ class DbcSlamFilter:
         cfg = self.config
         marg = np.einsum("pb,pbcm->pcm", self.particles.fric, pred)
         return enumerate_live(
-            marg, cfg.prune_threshold, cfg.max_hypotheses, layout=self._layout, phi=free.kin.phi
+            marg,
+            cfg.prune_threshold,
+            cfg.max_hypotheses,
+            layout=self._layout,
+            phi=free.kin.phi,
+            pool=self._pool,
+            work=self._work,
         )
 
     def _live_entries(self, hyp: Hypotheses, pred: FloatArray) -> _Entries:
@@ -1068,6 +1094,7 @@ class DbcSlamFilter:
             ),
             sensitivity=inp.force is not None,
             work=self._work,
+            pool=self._pool,
         )
         if n_bad or not np.isfinite(out["v_next"]).all():
             msg = (
@@ -1116,6 +1143,7 @@ class DbcSlamFilter:
             z_v=z_v,
             z_q=z_q,
             pair_mask=self._pair_mask,
+            pool=self._pool,
         )
 
     def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:

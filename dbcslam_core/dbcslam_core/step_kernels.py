@@ -26,18 +26,32 @@ Entries of a row are contiguous: starts[p] .. starts[p + 1] (R + 1,). Units as i
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core import kernels
+from dbcslam_core.errors import ModelError, SolverError
+from dbcslam_core.row_pool import RowPool
 
-__all__ = ["AVAILABLE", "entry_dynamics", "map_pending", "predict_modes", "propose_rows"]
+if TYPE_CHECKING:
+    from dbcslam_core.dynamics import PlanarModel
+
+__all__ = [
+    "AVAILABLE",
+    "entry_dynamics",
+    "map_pending",
+    "predict_modes",
+    "propose_rows",
+    "support_terms",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+T = TypeVar("T")
 
 AVAILABLE = kernels.AVAILABLE
 
@@ -133,13 +147,19 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
     irs: FloatArray,
     cov: FloatArray,
     log_alpha: FloatArray,
+    n_max: int,
+    lo: int,
+    hi: int,
 ) -> int:
-    """Fill the per-(entry, friction) outputs; returns the number of singular systems.
+    """Fill the per-(entry, friction) outputs of rows lo .. hi - 1; returns the number of
+    singular systems.
 
     params = (dt, eps_rel, impulse scale, velocity scale, impulse floor, gap closure, gap
     tolerance (< 0: None), constrained noise). vf (R, Fv, nv) with Fv in (1, F): with Fv = F
     or a mass per (row, f) the geometry differs per f (no sharing of friction-free solves).
-    The steps within an element are those of `kernels._kernel`.
+    n_max: the most active contacts of any entry (of all rows: the regularisation of
+    `kernels._kernel` depends on it). The steps within an element are those of
+    `kernels._kernel`.
     """
     # Long because: one fused loop over the entries keeps the per-entry temporaries in
     # registers; the same steps split into inlined helpers (row set-up, modes and gaps,
@@ -153,19 +173,11 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
         params[4],
     )
     closure, tolerance, c_noise = params[5], params[6], params[7]
-    n_r = starts.shape[0] - 1
     n_c = md.shape[1]
     nv = jn.shape[2]
     n_f = log_alpha.shape[1]
     two_c = 2 * n_c
     shared = (not has_mass) and vf.shape[1] == 1
-    n_max = 0
-    for n in range(md.shape[0]):
-        cnt = 0
-        for c in range(n_c):
-            if md[n, c] != _SEP:
-                cnt += 1
-        n_max = max(n_max, cnt)
     mw = np.empty((mass.shape[1] if has_mass else 1, two_c, nv))
     lu = np.empty((nv, nv))
     rhs_m = np.empty((nv, two_c))
@@ -188,7 +200,7 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
     base_t = np.empty((n_fv, n_c))
     dg = np.empty((n_fm, n_c))  # Delassus diagonal (normal + tangent) per contact
     n_bad = 0
-    for p in range(n_r):
+    for p in range(lo, hi):
         if starts[p + 1] == starts[p]:
             continue
         n_bad += _row_mw(p, jn, jt, minv, mass, has_mass, mw, lu, rhs_m)
@@ -780,15 +792,17 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     modes_post: FloatArray,
     marg_post: FloatArray,
     pair_in: FloatArray,
+    lo: int,
+    hi: int,
 ) -> None:
-    """Per row p: the evidence of each (entry, f), the Gumbel-max draw over the padded
-    (K, F) layout (uniforms (R / copies, K F), shared by the copies of a particle), the
-    sampled v', q' and the discrete posterior given v' (see the module docstring)."""
-    n_r = starts.shape[0] - 1
+    """Per row p of lo .. hi - 1: the evidence of each (entry, f), the Gumbel-max draw over
+    the padded (K, F) layout (uniforms (R / copies, K F), shared by the copies of a
+    particle), the sampled v', q' and the discrete posterior given v' (see the module
+    docstring)."""
     n_f = log_alpha.shape[1]
     nv = v_h.shape[2]
     k_max = 1
-    for p in range(n_r):
+    for p in range(lo, hi):
         k_max = max(k_max, starts[p + 1] - starts[p])
     lj = np.empty(k_max * n_f)
     lpost = np.empty(k_max * n_f)
@@ -801,7 +815,7 @@ def _propose_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     corr = np.empty(nv)
     obs = (has_obs, obs_value, angular, s_diag, dt, shared)
     noise = (z_v, z_q, q_gain, q_std, has_obs, dt)
-    for p in range(n_r):
+    for p in range(lo, hi):
         s0 = starts[p]
         n_e = starts[p + 1] - s0
         _row_evidence(p, s0, n_e, md, q, v_h, cov, log_alpha, obs, low, z, y, vm, vc, lj)
@@ -894,10 +908,13 @@ def _predict_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     at: FloatArray,
     params: FloatArray,
     out: FloatArray,
+    lo: int,
+    hi: int,
 ) -> None:
     """`transition.soft_modes` of the free motion and `transition.mode_transition` (with the
-    far-gap reach) per (row, friction, contact), the same operations in the same order.
-    params = (dt, gap_scale, far_gap, slip_scale, slide_floor, persistence)."""
+    far-gap reach) per (row, friction, contact) of rows lo .. hi - 1, the same operations in
+    the same order. params = (dt, gap_scale, far_gap, slip_scale, slide_floor,
+    persistence)."""
     dt, gs, far, slip, floor, rho = (
         params[0],
         params[1],
@@ -906,10 +923,10 @@ def _predict_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         params[4],
         params[5],
     )
-    n_r, n_f, n_c, _ = prev.shape
+    _, n_f, n_c, _ = prev.shape
     soft = np.empty(4)
     pred = np.empty(4)
-    for p in range(n_r):
+    for p in range(lo, hi):
         for c in range(n_c):
             g = phi[p, c] + dt * an[p, c]
             reach = _sig(-(g - far) / gs)
@@ -940,9 +957,97 @@ def _predict_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
                     out[p, f, c, m] = pred[m] / total
 
 
+def _support_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
+    q: FloatArray,
+    v: FloatArray,
+    force: FloatArray,
+    mus: FloatArray,
+    points: FloatArray,
+    weights: FloatArray,
+    mass: FloatArray,
+    limit_diag: FloatArray,
+    params: FloatArray,
+    m_eff: FloatArray,
+    v_free: FloatArray,
+    lo: int,
+    hi: int,
+) -> int:
+    """`PlanarModel.support_terms` for rows lo .. hi - 1: the linearised support friction K
+    at mu 1 of each row (points (N, 2) body frame, weights (N,)), then per coefficient
+    mus[p, b] the effective mass M + dt mu K (quasi-static: dt mu K) into m_eff (R, B, nv,
+    nv) and v_free = m_eff^-1 (M v + dt F) (quasi-static: m_eff^-1 dt F) into v_free (R, B,
+    nv). params = (dt, load = m g (N), velocity eps (m/s), quasi-static 0 / 1). Returns the
+    number of singular effective masses (their v_free is NaN)."""
+    dt, load, eps, quasi = params[0], params[1], params[2], params[3] > 0.5
+    nv = v.shape[1]
+    n_b = mus.shape[1]
+    k1 = np.zeros((nv, nv))
+    lu = np.empty((nv, nv))
+    rhs = np.empty((nv, 1))
+    n_bad = 0
+    for p in range(lo, hi):
+        for i in range(nv):
+            for j in range(nv):
+                k1[i, j] = 0.0
+        if quasi:
+            sp = 0.0
+            for i in range(nv):
+                sp += limit_diag[i] * v[p, i] * v[p, i]
+            scale = load / max(math.sqrt(sp), eps)
+            for i in range(nv):
+                k1[i, i] = scale * limit_diag[i]
+        elif nv == 2:
+            scale = load * np.sum(weights) / max(math.hypot(v[p, 0], v[p, 1]), eps)
+            k1[0, 0] = scale
+            k1[1, 1] = scale
+        else:
+            co, si = math.cos(q[p, 2]), math.sin(q[p, 2])
+            s0 = sx = sy = srr = 0.0
+            for n in range(points.shape[0]):
+                rx = co * points[n, 0] - si * points[n, 1]
+                ry = si * points[n, 0] + co * points[n, 1]
+                vx = v[p, 0] - v[p, 2] * ry
+                vy = v[p, 1] + v[p, 2] * rx
+                c = load * weights[n] / max(math.sqrt(vx * vx + vy * vy), eps)
+                s0 += c
+                sx += c * rx
+                sy += c * ry
+                srr += c * (rx * rx + ry * ry)
+            k1[0, 0] = s0
+            k1[1, 1] = s0
+            k1[0, 2] = -sy
+            k1[2, 0] = -sy
+            k1[1, 2] = sx
+            k1[2, 1] = sx
+            k1[2, 2] = srr
+        for b in range(n_b):
+            mu = mus[p, b]
+            for i in range(nv):
+                for j in range(nv):
+                    m_ij = dt * mu * k1[i, j]
+                    if not quasi:
+                        m_ij += mass[i, j]
+                    m_eff[p, b, i, j] = m_ij
+                    lu[i, j] = m_ij
+                r = dt * force[p, i]
+                if not quasi:
+                    for j in range(nv):
+                        r += mass[i, j] * v[p, j]
+                rhs[i, 0] = r
+            if not kernels._lu_solve_inplace(lu, rhs, nv, 1):
+                n_bad += 1
+                for i in range(nv):
+                    v_free[p, b, i] = np.nan
+                continue
+            for i in range(nv):
+                v_free[p, b, i] = rhs[i, 0]
+    return n_bad
+
+
 if AVAILABLE:
     import numba
 
+    _support_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_support_kernel)
     _sig = numba.njit(cache=True, nogil=True, error_model="numpy")(_sig)
     _predict_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_predict_kernel)
 
@@ -972,19 +1077,32 @@ if AVAILABLE:
     _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
 
 
-def _buffer(work: dict[str, FloatArray] | None, name: str, shape: tuple[int, ...]) -> FloatArray:
-    """An uninitialised float array of `shape`: a view of the reusable buffer `name` of work
-    (grown when too small), or a new array without work. Reusing the large per-step
-    temporaries avoids the page faults of fresh allocations (glibc maps arrays above
-    128 kB anew each time)."""
-    if work is None:
-        return np.empty(shape)
-    size = math.prod(shape)
-    buf = work.get(name)
-    if buf is None or buf.size < size:
-        buf = np.empty(max(size, 1024) + size // 4)
-        work[name] = buf
-    return buf[:size].reshape(shape)
+_MIN_ENTRIES = 256
+"""Fewest live entries per thread of the entry and proposal kernels (~0.1 ms of work;
+smaller problems run in the calling thread)."""
+_MIN_ROWS = 1024
+"""Fewest rows per thread of the mode prediction kernel."""
+
+
+def _chunks(
+    pool: RowPool | None, n_rows: int, starts: IntArray | None, min_work: int
+) -> list[tuple[int, int]]:
+    """The row ranges of one kernel call: one range without a pool."""
+    if pool is None:
+        return [(0, n_rows)]
+    return pool.chunks(n_rows, starts=starts, min_work=min_work)
+
+
+def _run_rows(
+    pool: RowPool | None,
+    kernel: Callable[..., T],
+    args: tuple[Any, ...],
+    bounds: list[tuple[int, int]],
+) -> list[T]:
+    """kernel(*args, lo, hi) for every range of bounds (on the pool's threads)."""
+    if pool is None or len(bounds) == 1:
+        return [kernel(*args, lo, hi) for lo, hi in bounds]
+    return pool.map(lambda lo, hi: kernel(*args, lo, hi), bounds)
 
 
 def entry_dynamics(
@@ -1008,7 +1126,8 @@ def entry_dynamics(
     sig2: FloatArray,
     params: tuple[float, ...],
     sensitivity: bool,
-    work: dict[str, FloatArray] | None = None,
+    work: dict[str, npt.NDArray[Any]] | None = None,
+    pool: RowPool | None = None,
 ) -> tuple[dict[str, Any], int]:
     """Phase 4 of the step for the N live entries (rows starts[p] .. starts[p + 1] of row p,
     modes md (N, C)) x F friction hypotheses.
@@ -1028,7 +1147,7 @@ def entry_dynamics(
     impulse_response (N, F, 2, C, nv) or None, cov (N, F, nv, nv), log_alpha (N, F)) and
     the number of singular systems met. work: reusable buffers (a dict kept by the
     caller): the outputs are then views of them, valid until the next call with the same
-    work.
+    work. pool: threads over ranges of rows (`row_pool`; same outputs for any split).
     """
     # Long because: the argument list, its documentation and the one call that hands ~30
     # contiguous arrays to the compiled kernel; there is no logic here to split.
@@ -1046,12 +1165,17 @@ def entry_dynamics(
         "cov": (n_e, n_f, nv, nv),
         "log_alpha": (n_e, n_f),
     }
-    out: dict[str, Any] = {name: _buffer(work, name, shape) for name, shape in shapes.items()}
+    out: dict[str, Any] = {
+        name: kernels.work_buffer(work, name, shape) for name, shape in shapes.items()
+    }
     n_groups = int(group.max()) + 1 if group.size else 0
     c = np.ascontiguousarray
-    n_bad = _entry_kernel(
-        c(starts, dtype=np.int64),
-        c(md, dtype=np.int64),
+    starts = c(starts, dtype=np.int64)
+    md = c(md, dtype=np.int64)
+    n_max = int((md != _SEP).sum(axis=1).max(initial=0))
+    args = (
+        starts,
+        md,
         c(jn),
         c(jt),
         c(phi),
@@ -1080,7 +1204,10 @@ def entry_dynamics(
         out["impulse_response"],
         out["cov"],
         out["log_alpha"],
+        n_max,
     )
+    bounds = _chunks(pool, n_r, starts, _MIN_ENTRIES)
+    n_bad = sum(_run_rows(pool, _entry_kernel, args, bounds))
     if not sensitivity:
         out["impulse_response"] = None
     return out, int(n_bad)
@@ -1104,6 +1231,7 @@ def propose_rows(
     z_v: FloatArray,
     z_q: FloatArray,
     pair_mask: BoolArray,
+    pool: RowPool | None = None,
 ) -> dict[str, FloatArray]:
     """Phases 5-6 of the step per row (R rows, entries starts[p] .. starts[p + 1], modes md
     (N, C)): q (R, nq) poses; v_h (N, F, nv), cov (N, F, nv, nv), log_alpha (N, F) of
@@ -1114,7 +1242,8 @@ def propose_rows(
     copies of a friction bank share them); z_v, z_q (R, nq) standard normals of v' and of the
     position noise; pair_mask (pairs, C) the contacts of each friction pair; shared: v_h and
     cov of an entry without sliding contacts are the same for every f (no per-friction
-    support terms), so its proposal and density are computed once.
+    support terms), so its proposal and density are computed once. pool: threads over
+    ranges of rows (`row_pool`; same outputs for any split).
 
     Returns incr (R,) the evidence, v_new and q_new (R, nq) the sampled state, fric_post
     (R, F), modes_post (R, F, C, 4), marg_post (R, C, 4) and pair_in (R, pairs).
@@ -1140,8 +1269,9 @@ def propose_rows(
         else observation
     )
     c = np.ascontiguousarray
-    _propose_kernel(
-        c(starts, dtype=np.int64),
+    starts = c(starts, dtype=np.int64)
+    args = (
+        starts,
         c(md, dtype=np.int64),
         c(q),
         c(v_h),
@@ -1168,6 +1298,7 @@ def propose_rows(
         out["marg_post"],
         out["pair_in"],
     )
+    _run_rows(pool, _propose_kernel, args, _chunks(pool, n_r, starts, _MIN_ENTRIES))
     return out
 
 
@@ -1220,15 +1351,17 @@ def predict_modes(
     *,
     dt: float,
     params: tuple[float, float, float, float, float],
+    pool: RowPool | None = None,
 ) -> FloatArray:
     """Predicted per-contact mode marginals (R, F, C, 4) from the previous ones previous (R,
     F, C, 4) and the free motion (phi, gap_rate_free, vt_free (R, C): m, m/s, m/s): the
     softened NCP checks (`transition.soft_modes`) and the persistence transition with the
     far-gap reach (`transition.mode_transition`), without edge consistency. params =
-    (gap_scale, far_gap, slip_scale, slide_floor, persistence) of `TransitionParams`."""
+    (gap_scale, far_gap, slip_scale, slide_floor, persistence) of `TransitionParams`; pool:
+    threads over ranges of rows (`row_pool`)."""
     prev = np.ascontiguousarray(previous, dtype=np.float64)
     out = np.empty(prev.shape)
-    _predict_kernel(
+    args = (
         prev,
         np.ascontiguousarray(phi, dtype=np.float64),
         np.ascontiguousarray(gap_rate_free, dtype=np.float64),
@@ -1236,4 +1369,73 @@ def predict_modes(
         np.asarray((dt, *params), dtype=np.float64),
         out,
     )
+    _run_rows(pool, _predict_kernel, args, _chunks(pool, prev.shape[0], None, _MIN_ROWS))
     return out
+
+
+def support_terms(
+    model: PlanarModel,
+    q: FloatArray,
+    v: FloatArray,
+    u: FloatArray,
+    mu_surface: FloatArray,
+    *,
+    velocity_eps: float | None = None,
+    pool: RowPool | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """`PlanarModel.support_terms` compiled (the same equations; values equal to round-off,
+    the 3 x 3 solves by LU with partial pivoting as numpy's): effective mass (R, B, nv, nv)
+    (kg, kg m^2) and free velocity (R, B, nv) (m/s) for R states q, v (R, nq) (v the
+    linearisation velocity), input wrench u (nq,) or (R, nq) and support coefficients
+    mu_surface (B,) or (R, B). The generalised force (inputs, extensions) comes from the
+    model. pool: threads over ranges of rows."""
+    qa = np.ascontiguousarray(q, dtype=np.float64)
+    va = np.ascontiguousarray(v, dtype=np.float64)
+    mus = np.asarray(mu_surface, dtype=np.float64)
+    if model.quasi_static and np.any(mus <= 0.0):
+        msg = (
+            f"the quasi-static push model needs support coefficients > 0 (f_max = mu_s m "
+            f"g), got {mus.tolist()}"
+        )
+        raise ModelError(msg)
+    eps = model.velocity_eps if velocity_eps is None else float(velocity_eps)
+    if not eps > 0.0:
+        msg = f"velocity_eps must be > 0 m/s, got {eps}"
+        raise ModelError(msg)
+    n_r, nv = va.shape
+    mus2 = np.ascontiguousarray(
+        np.broadcast_to(mus[None, :] if mus.ndim == 1 else mus, (n_r, mus.shape[-1]))
+    )
+    force = np.ascontiguousarray(
+        np.broadcast_to(model.generalized_force(qa, va, u), (n_r, nv)), dtype=np.float64
+    )
+    m_eff = np.empty((n_r, mus2.shape[1], nv, nv))
+    v_free = np.empty((n_r, mus2.shape[1], nv))
+    args = (
+        qa,
+        va,
+        force,
+        mus2,
+        np.ascontiguousarray(model.support_points, dtype=np.float64),
+        np.ascontiguousarray(model.support_weights, dtype=np.float64),
+        np.ascontiguousarray(model.mass_matrix),
+        np.ascontiguousarray(model.limit_surface_diag[:nv]),
+        np.asarray(
+            (
+                model.scenario.dt,
+                float(model.mass_diag[0] * model.scenario.gravity),
+                eps,
+                1.0 if model.quasi_static else 0.0,
+            )
+        ),
+        m_eff,
+        v_free,
+    )
+    n_bad = sum(_run_rows(pool, _support_kernel, args, _chunks(pool, n_r, None, _MIN_ROWS)))
+    if n_bad:
+        msg = (
+            f"support friction: the effective mass is singular for {n_bad} (state, "
+            "coefficient) pairs"
+        )
+        raise SolverError(msg)
+    return m_eff, v_free

@@ -275,3 +275,58 @@ def test_compiled_mode_prediction_equals_transition(seed: int, n_f: int, scale: 
         params=(tp.gap_scale, tp.far_gap, tp.slip_scale, tp.slide_floor, tp.persistence),
     )
     np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-15)
+
+
+_SQUARE = [[-0.045, -0.045], [0.045, -0.045], [0.045, 0.045], [-0.045, 0.045]]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    model=st.sampled_from(["dynamic", "quasi_static"]),
+    pressure=st.sampled_from(["uniform", "rim", "tripod"]),
+    effect=st.sampled_from([None, "viscous_damping", "support_pressure"]),
+    per_row_mu=st.booleans(),
+    slow=st.booleans(),
+)
+def test_compiled_support_terms_equal_the_model(
+    seed: int, model: str, pressure: str, effect: str | None, per_row_mu: bool, slow: bool
+) -> None:
+    """`step_kernels.support_terms` (the push's implicit support friction, compiled) equals
+    `PlanarModel.support_terms` to round-off: dynamic and quasi-static, any pressure
+    distribution, an extension force and a pressure effect, coefficients per hypothesis or
+    per row (friction bank), speeds below the regularisation velocity included."""
+    from dbcslam_core.dynamics import PlanarModel
+    from dbcslam_core.extensions import ModelExtension
+    from dbcslam_core.scenario import push_scenario
+
+    rng = np.random.default_rng(seed)
+    sc = push_scenario(_SQUARE, mass=0.8, support_mu=0.3, pressure=pressure, model=model, dt=0.01)
+    ext = {
+        None: (),
+        "viscous_damping": (ModelExtension.make("viscous_damping", b=1.5),),
+        "support_pressure": (ModelExtension.make("support_pressure", rim_fraction=0.4),),
+    }[effect]
+    pm = PlanarModel(sc, ext)
+    n = 37
+    q = np.column_stack([rng.normal(0, 0.1, (n, 2)), rng.uniform(-4, 4, n)])
+    v = rng.normal(0, 1e-3 if slow else 0.2, (n, 3))
+    u = rng.normal(0, 2.0, 3)
+    mus = rng.uniform(0.05, 0.6, (n, 3)) if per_row_mu else np.array([0.1, 0.25, 0.4])
+    m_ref, v_ref = pm.support_terms(q, v, u, mus, velocity_eps=5e-3)
+    m_c, v_c = step_kernels.support_terms(pm, q, v, u, mus, velocity_eps=5e-3)
+    np.testing.assert_allclose(m_c, m_ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(v_c, v_ref, rtol=1e-9, atol=1e-13)
+
+
+def test_compiled_support_terms_refuse_bad_input() -> None:
+    from dbcslam_core.dynamics import PlanarModel
+    from dbcslam_core.errors import ModelError
+    from dbcslam_core.scenario import push_scenario
+
+    qs = PlanarModel(push_scenario(_SQUARE, mass=0.8, support_mu=0.3, model="quasi_static"))
+    q = np.zeros((2, 3))
+    with pytest.raises(ModelError, match="coefficients > 0"):
+        step_kernels.support_terms(qs, q, q, np.zeros(3), np.array([0.0, 0.2]))
+    with pytest.raises(ModelError, match="velocity_eps"):
+        step_kernels.support_terms(qs, q, q, np.zeros(3), np.array([0.2]), velocity_eps=0.0)
