@@ -236,6 +236,14 @@ def test_bad_particle_count_is_a_parameter_error(bad: int) -> None:
         FakeNode({"particles": bad}).build()
 
 
+def test_threads_parameter_reaches_the_filter() -> None:
+    """0 = automatic (FilterConfig.threads None), n >= 1 as given, negative refused."""
+    assert fn.build_config("gripper", _defaults()).threads is None
+    assert fn.build_config("gripper", {**_defaults(), "threads": 1}).threads == 1
+    with pytest.raises(fn.ParameterError, match="threads"):
+        FakeNode({"threads": -1}).build()
+
+
 @pytest.mark.parametrize(("period", "expected"), [(0.0, 19), (0.05, 4)])
 def test_markers_at_most_one_per_marker_period(traj: Any, period: float, expected: int) -> None:
     fake = FakeNode({"particles": 20, "marker_particles": 3, "marker_period": period})

@@ -67,6 +67,11 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
         "use /pusher/wrench (F/T force on the pusher) as a force observation (push scenarios)",
     ),
     "force_noise": (-1.0, "N; std per axis of the pusher force observation (<0: preset)"),
+    "threads": (
+        0,
+        "threads of the filter's compiled kernels (0: automatic, the usable CPUs up to 4; "
+        "1: the node's thread only); the estimates do not depend on it",
+    ),
     "max_gap": (1.0, "s; a longer gap between poses re-initialises the filter"),
     "reset_after": (0.5, "s; a jump back in time larger than this resets the filter"),
 }
@@ -121,6 +126,8 @@ def build_config(kind: str, params: Mapping[str, Any]) -> FilterConfig:
         overrides["contact_weight"] = float(params["contact_weight"])
     if float(params.get("force_noise", -1.0)) > 0.0:
         overrides["force_noise"] = float(params["force_noise"])
+    if int(params.get("threads", 0)) >= 1:
+        overrides["threads"] = int(params["threads"])
     return FilterConfig.preset(kind, **overrides)
 
 
@@ -159,6 +166,7 @@ def check_params(params: Mapping[str, Any]) -> None:
     checks = (
         ("particles", int(p["particles"]) >= 1 or int(p["particles"]) == -1, ">= 1 or -1"),
         ("marker_period", float(p["marker_period"]) >= 0.0, ">= 0"),
+        ("threads", int(p["threads"]) >= 0, ">= 0 (0: automatic)"),
         ("catch_up_steps", int(p["catch_up_steps"]) >= 1, ">= 1"),
         ("diagnostics_period", float(p["diagnostics_period"]) > 0.0, "> 0"),
         ("max_gap", float(p["max_gap"]) > 0.0, "> 0"),
