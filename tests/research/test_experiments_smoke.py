@@ -74,7 +74,7 @@ def test_bench_smoke(tmp_path: Path) -> None:
     assert [r["particles"] for r in rows] == [4, 6]
     assert rows[0]["blackbox_lemke_ms"] is not None
     assert rows[1]["blackbox_lemke_ms"] is None  # above --lemke-max: not run
-    assert all(r["dbcslam_ms"] > 0 for r in rows)
+    assert all(r["dbcslam_ms"] > 0 and r["dbcslam_1thread_ms"] > 0 for r in rows)
     assert "| edge | 4 |" in (tmp_path / "bench.md").read_text()
 
 

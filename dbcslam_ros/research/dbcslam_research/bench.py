@@ -17,7 +17,9 @@ What is measured (all on the synthetic paper data of :mod:`dbcslam_core.syntheti
    the black-box PGS filter (full metrics of :func:`dbcslam_core.experiments.score`).
 
 Timing: ``time.perf_counter`` around each ``step`` call, the first ``--warmup`` steps
-discarded, the median of the rest reported (ms/step). Both filters use the same observation
+discarded, the median of the rest reported (ms/step). DBC-SLAM runs with its default threads
+over rows (``FilterConfig.threads``: the usable CPUs, at most 4) and again on one thread (the
+black boxes use one; the estimates are the same bit for bit). Both filters use the same observation
 model, position noise and warm-up; the black-box filter's velocity process noise is its own
 (tuned) one, ``NCPFilterConfig.default_noise``, because with DBC-SLAM's tighter noise the
 bootstrap filter degenerates.
@@ -49,6 +51,7 @@ from dbcslam_core.experiments import (
     run_dbcslam,
     score,
 )
+from dbcslam_core.row_pool import resolve_threads
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
 
@@ -158,6 +161,12 @@ def _scaling_row(
         partial(run_dbcslam, part, seed=0, particles=p), warmup, repeat
     )
     row["dbcslam_rmse_mm"] = _rmse_mm(dbc)
+    # the same filter on one thread (the black boxes use one): same estimates, bit for bit
+    _, row["dbcslam_1thread_ms"] = _timed(
+        partial(run_dbcslam, part, seed=0, particles=p, overrides={"threads": 1}),
+        warmup,
+        repeat,
+    )
     live = dbc.live_hypotheses
     row["dbcslam_live_hypotheses"] = math.nan if live is None else float(np.mean(live))
     pgs, row["blackbox_pgs_ms"] = _timed(
@@ -216,14 +225,16 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
         "",
         "## Per-step time vs particles (equal particles, equal data)",
         "",
-        "| scenario | particles | DBC-SLAM [ms] | black-box PGS [ms] | black-box Lemke [ms] "
+        f"| scenario | particles | DBC-SLAM [ms] ({meta.get('threads', '?')} threads) "
+        "| DBC-SLAM 1 thread [ms] | black-box PGS [ms] | black-box Lemke [ms] "
         "| black-box Lemke active-set [ms] | Lemke / DBC | Lemke-AS / DBC | PGS / DBC "
         "| live hyp / particle | RMSE DBC / PGS / Lemke / Lemke-AS [mm] |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["scaling"]:
         lines.append(
             f"| {r['scenario']} | {r['particles']} | {_fmt(r['dbcslam_ms'])} | "
+            f"{_fmt(r.get('dbcslam_1thread_ms', math.nan))} | "
             f"{_fmt(r['blackbox_pgs_ms'])} | {_fmt(r['blackbox_lemke_ms'])} | "
             f"{_fmt(r['blackbox_lemke_as_ms'])} | "
             f"{_fmt(r['ratio_lemke_over_dbcslam'])} | "
@@ -388,6 +399,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "cpus": os.cpu_count(),
+        "threads": resolve_threads(None),
         "steps": args.steps,
         "warmup": args.warmup,
         "repeat": args.repeat,
