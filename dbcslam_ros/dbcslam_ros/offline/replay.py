@@ -39,7 +39,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -63,6 +63,9 @@ from dbcslam_ros.contract import (
 )
 from dbcslam_ros.errors import BagError, UsageError
 from dbcslam_ros.node.session import FilterSession
+
+if TYPE_CHECKING:
+    from dbcslam_ros.offline.evaluate import BagArrays
 
 __all__ = [
     "INPUT_TOPICS",
@@ -493,7 +496,7 @@ def replay_bag(
             f"(rejected inputs: {rejected or 'none'}; {why})"
         )
         raise BagError(msg)
-    metrics, plots = _products(dst, opts)
+    arrays, metrics, plots = _products(dst, opts)
     metrics["replay"] = {
         "source": str(src),
         "poses": n_poses,
@@ -505,18 +508,18 @@ def replay_bag(
         "params": {k: v for k, v in sorted(params.items())},
     }
     if counts.get(POSE, 0):
-        metrics["replay"]["recorded_estimates"] = _compare_recorded(src, dst, opts.salvage)
+        metrics["replay"]["recorded_estimates"] = _compare_recorded(src, arrays, opts.salvage)
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     return ReplayResult(src, dst, n_poses, replayer.estimates, wall, rejected, metrics, plots)
 
 
-def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:
+def _compare_recorded(src: Path, after: BagArrays, salvage: bool) -> dict[str, Any]:
     """How the estimates recorded in the source bag (e.g. a live run) compare with the
-    replayed ones at the same stamps (m; differences of the planar position)."""
+    replayed ones (`after`, the arrays of the output bag) at the same stamps (m; differences
+    of the planar position)."""
     from dbcslam_ros.offline.evaluate import load_bag_arrays
 
     before = load_bag_arrays(src, salvage=salvage)
-    after = load_bag_arrays(out)
     _, i, j = np.intersect1d(before.est_t, after.est_t, return_indices=True)
     diff = np.linalg.norm(before.est_pose[i, :2] - after.est_pose[j, :2], axis=1)
     return {
@@ -528,8 +531,10 @@ def _compare_recorded(src: Path, out: Path, salvage: bool) -> dict[str, Any]:
     }
 
 
-def _products(out: Path, opts: ReplayOptions) -> tuple[dict[str, Any], tuple[Path, ...]]:
-    """metrics (truth optional) and plots of a replayed bag."""
+def _products(
+    out: Path, opts: ReplayOptions
+) -> tuple[BagArrays, dict[str, Any], tuple[Path, ...]]:
+    """The arrays, metrics (truth optional) and plots of a replayed bag."""
     from dbcslam_ros.offline.evaluate import evaluate_bag, load_bag_arrays
 
     arrays = load_bag_arrays(out)
@@ -539,7 +544,7 @@ def _products(out: Path, opts: ReplayOptions) -> tuple[dict[str, Any], tuple[Pat
         from dbcslam_ros.offline.report import save_bag_figures
 
         plots = tuple(save_bag_figures(arrays, out))
-    return metrics, plots
+    return arrays, metrics, plots
 
 
 def replay_many(
