@@ -849,9 +849,9 @@ def work_buffer(
     return buf[:size].reshape(shape)
 
 
-_MIN_PREPARE_ROWS = 1024
+_MIN_PREPARE_ROWS = 512
 """Fewest particles per thread of the mode ordering (`prepare_tuples`)."""
-_MIN_ENUMERATION_ROWS = 512
+_MIN_ENUMERATION_ROWS = 256
 """Fewest particles (and visited tuples) per thread of the enumeration (smaller problems: the
 calling thread)."""
 
