@@ -144,19 +144,21 @@ def run_live(
     log_dir: Path | None = None,
     timeout_s: float = 120.0,
     pusher_wrench: bool = True,
+    threads: int = 0,
 ) -> LiveResult:
     """Run the simulator node and the filter node for one scenario and measure (see module).
 
     Uses the caller's ``ROS_DOMAIN_ID`` (set it before: :func:`main` picks a random one);
     particles < 0 keeps the filter node's per-kind live default; duration <= 0 the simulator's
-    default. log_dir: where the two processes' output goes (None: discarded).
+    default. log_dir: where the two processes' output goes (None: discarded); threads: the
+    filter node's ``threads`` parameter (0: automatic).
     """
     from dbcslam_ros import runtime as rt
 
     node = rt.Node(f"bench_live_{scenario}")
     heard = _Heard()
     heard.subscribe(node)
-    filter_cmd = _filter_command(particles, pusher_wrench=pusher_wrench)
+    filter_cmd = _filter_command(particles, pusher_wrench=pusher_wrench, threads=threads)
     sim_cmd = _sim_command(scenario, engine, duration)
     load_before = os.getloadavg()[0]
     procs: list[subprocess.Popen[bytes]] = []
@@ -220,10 +222,12 @@ class _Heard:
                 self.diags.append({kv.key: kv.value for kv in status.values})
 
 
-def _filter_command(particles: int, *, pusher_wrench: bool) -> list[str]:
-    """The filter node with ``particles`` (< 0: its live default), diagnostics twice a second."""
+def _filter_command(particles: int, *, pusher_wrench: bool, threads: int = 0) -> list[str]:
+    """The filter node with ``particles`` (< 0: its live default) and ``threads`` (0:
+    automatic), diagnostics twice a second."""
     cmd = [sys.executable, "-m", "dbcslam_ros.node.filter_node", "--ros-args"]
     cmd += ["-p", f"particles:={particles}", "-p", "diagnostics_period:=0.5"]
+    cmd += ["-p", f"threads:={threads}"]
     cmd += ["-p", f"use_pusher_wrench:={'true' if pusher_wrench else 'false'}"]
     return cmd
 
@@ -450,6 +454,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-pusher-wrench", action="store_true", help="filter without /pusher/wrench (push)"
     )
     p.add_argument("--no-live", action="store_true", help="offline measurement only")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=0,
+        help="the filter node's threads parameter (default 0: automatic, the usable CPUs)",
+    )
     p.add_argument("--domain-id", type=int, default=None, help="default: random 150..230")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="directory for md/json")
     p.add_argument("--logs", type=Path, default=None, help="directory for process logs")
@@ -499,6 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     engine=args.engine,
                     log_dir=args.logs,
                     pusher_wrench=not args.no_pusher_wrench,
+                    threads=args.threads,
                 )
             except RuntimeError as err:
                 print(str(err), file=sys.stderr)
