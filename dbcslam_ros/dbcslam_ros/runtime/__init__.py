@@ -18,6 +18,7 @@ Start ROS with :func:`init` (= :func:`dbcslam_ros.ros_context.init_ros`, network
 
 from __future__ import annotations
 
+import functools
 import importlib
 import time
 from collections.abc import Callable
@@ -165,11 +166,13 @@ def neutral_qos(qos: Any) -> QoSProfile:
 # ---------------------------------------------------------------------------------- messages
 
 
+@functools.lru_cache(maxsize=256)
 def message_class(type_name: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Type`` (imported from ``pkg.msg``).
+    """The rclpy message class of ``pkg/msg/Type`` (imported from ``pkg.msg``; cached: the
+    converters ask for a class per message built).
 
     Raises:
-        MessageTypeError: bad name or type not installed.
+        MessageTypeError: bad name or type not installed (not cached).
     """
     pkg, _, typ = normalize_type_name(type_name).split("/")
     try:
