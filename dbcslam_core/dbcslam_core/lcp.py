@@ -32,6 +32,7 @@ __all__ = [
     "PGSSolver",
     "lcp_residuals",
     "make_solver",
+    "row_violation",
 ]
 
 F64 = NDArray[np.float64]
@@ -62,6 +63,22 @@ class LCPResiduals:
     def worst(self) -> float:
         """Largest of the three violations."""
         return max(self.z_neg, self.w_neg, self.comp)
+
+
+def row_violation(a: F64, b: F64, z: F64) -> tuple[int, float]:
+    """The row of the largest violation of w = A z + b >= 0 relative to that row's
+    magnitudes sum_j |A_ij z_j| + |b_i| (floor: 1e-12 of the problem's scale, so that
+    round-off of rows with nothing in them does not count), and that relative violation
+    (0 when w >= 0)."""
+    w = a @ z + b
+    viol = np.maximum(-w, 0.0)
+    if not np.any(viol > 0.0):
+        return -1, 0.0
+    terms = np.abs(a) @ np.abs(z) + np.abs(b)
+    floor = 1e-12 * (float(np.max(np.abs(b))) + float(np.max(np.abs(a))) * float(np.max(z)))
+    rel = viol / np.maximum(terms, max(floor, 1e-300))
+    row = int(np.argmax(rel))
+    return row, float(rel[row])
 
 
 def lcp_residuals(A: ArrayLike, b: ArrayLike, z: ArrayLike) -> LCPResiduals:
@@ -98,7 +115,8 @@ class LemkeSolver:
     """Lemke's method with lexicographic degeneracy resolution.
 
     max_pivots: cap on pivots (default 50 n + 100); pivot_tol: smallest pivot accepted;
-    feas_tol: tolerance of the final polish check (scaled by max(1, |b|_inf)).
+    feas_tol: tolerance of the final polish check (scaled by max(1, |b|_inf)); row_tol:
+    the per-row check of the terminal basis (`row_violation`).
     After a ray termination the solve is retried on slightly regularised copies of A (see
     `regularization`), polishing against the original A; SolverError if all attempts fail.
     """
@@ -110,6 +128,13 @@ class LemkeSolver:
     """Relative LCP residual above which a terminal basis is rejected (then retried)."""
     regularization: tuple[float, ...] = (1e-12, 1e-10, 1e-8)
     """Retries after a ray termination with A + eps max|A| I, eps in this order."""
+    row_tol: float = 0.1
+    """Largest accepted violation of w >= 0 in one row relative to the magnitudes of that row
+    (`row_violation`); a terminal basis above it is rejected (then retried). The rows of a
+    Stewart-Trinkle LCP mix units (velocities, impulses), so the overall `accept_tol` alone
+    lets an impulse-row violation pass whose size is the row's whole content (a tangential
+    impulse without normal impulse: rel 1.0). Degenerate but acceptable bases of the
+    synthetic pushes reach 1e-3."""
 
     def solve(self, A: ArrayLike, b: ArrayLike) -> F64:
         """Solve w = A z + b, 0 <= z _|_ w >= 0; raises SolverError if Lemke fails."""
@@ -237,6 +262,13 @@ class LemkeSolver:
             msg = (
                 f"Lemke terminated but the solution violates the LCP by {best:.3g} "
                 f"(size {n}); numerically unreliable"
+            )
+            raise SolverError(msg)
+        row, rel = row_violation(a, b, z)
+        if rel > self.row_tol:
+            msg = (
+                f"Lemke terminated but w[{row}] < 0 by {rel:.3g} of the magnitudes in that row "
+                f"(size {n}); a degenerate basis"
             )
             raise SolverError(msg)
         return z

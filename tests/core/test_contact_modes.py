@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from dbcslam_core.contact_modes import (
@@ -89,6 +89,21 @@ def test_edge_reduced_solution_equals_lcp(
     tau=st.floats(-0.01, 0.01),
     closing=st.floats(0.0, 0.001),
     mu=st.sampled_from([0.1, 0.4, 0.7]),
+)
+# found by hypothesis: a vertex exactly on the jaw, round inputs; Lemke ended on a degenerate
+# basis with a tangential impulse of 1.2e-6 N s at a contact 5 cm away (w = mu ln - lt < 0 by
+# the whole row) that the overall residual check accepted (now `LemkeSolver.row_tol`)
+@example(
+    yaw=0.015625,
+    gap=0.0,
+    vx=0.0,
+    vy=0.25,
+    w=0.00475,
+    fx=0.00390625,
+    fy=0.0,
+    tau=0.0,
+    closing=0.0,
+    mu=0.1,
 )
 def test_gripper_reduced_velocity_equals_lcp(
     yaw: float,

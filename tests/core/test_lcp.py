@@ -190,3 +190,17 @@ def test_lemke_pivot_cap() -> None:
         LemkeSolver(max_pivots=1, regularization=()).solve(a, b)
     z = LemkeSolver().solve(a, b)
     assert lcp_residuals(a, b, z).worst <= LEMKE_TOL * 10
+
+
+def test_row_violation_is_relative_to_the_row() -> None:
+    """A violation that is the whole content of its row counts (even if tiny against the
+    problem's scale); round-off in an empty row does not."""
+    from dbcslam_core.lcp import row_violation
+
+    a = np.array([[1e4, 0.0], [0.0, 1.0]])
+    b = np.array([-1e4, 0.0])
+    assert row_violation(a, b, np.array([1.0, 0.0])) == (-1, 0.0)
+    row, rel = row_violation(a, np.array([-1e4, -1e-6]), np.array([1.0, 0.0]))
+    assert row == 1 and rel == pytest.approx(1.0)
+    row, rel = row_violation(a, np.array([-1e4, -1e-20]), np.array([1.0, 0.0]))
+    assert rel < 1e-3
