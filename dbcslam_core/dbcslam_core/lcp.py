@@ -67,15 +67,16 @@ class LCPResiduals:
 
 def row_violation(a: F64, b: F64, z: F64) -> tuple[int, float]:
     """The row of the largest violation of w = A z + b >= 0 relative to that row's
-    magnitudes sum_j |A_ij z_j| + |b_i| (floor: 1e-12 of the problem's scale, so that
-    round-off of rows with nothing in them does not count), and that relative violation
+    magnitudes sum_j |A_ij z_j| + |b_i| (floor: 1e-9 of the problem's scale |b| + |A| |z|,
+    so that round-off in rows with (almost) nothing in them does not count), and that
+    relative violation
     (0 when w >= 0)."""
     w = a @ z + b
     viol = np.maximum(-w, 0.0)
     if not np.any(viol > 0.0):
         return -1, 0.0
     terms = np.abs(a) @ np.abs(z) + np.abs(b)
-    floor = 1e-12 * (float(np.max(np.abs(b))) + float(np.max(np.abs(a))) * float(np.max(z)))
+    floor = 1e-9 * (float(np.max(np.abs(b))) + float(np.max(np.abs(a))) * float(np.max(z)))
     rel = viol / np.maximum(terms, max(floor, 1e-300))
     row = int(np.argmax(rel))
     return row, float(rel[row])

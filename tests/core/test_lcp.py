@@ -200,7 +200,9 @@ def test_row_violation_is_relative_to_the_row() -> None:
     a = np.array([[1e4, 0.0], [0.0, 1.0]])
     b = np.array([-1e4, 0.0])
     assert row_violation(a, b, np.array([1.0, 0.0])) == (-1, 0.0)
-    row, rel = row_violation(a, np.array([-1e4, -1e-6]), np.array([1.0, 0.0]))
+    # -1e-3 in a row that holds nothing else: the whole row (1e-7 of the problem's scale)
+    row, rel = row_violation(a, np.array([-1e4, -1e-3]), np.array([1.0, 0.0]))
     assert row == 1 and rel == pytest.approx(1.0)
-    row, rel = row_violation(a, np.array([-1e4, -1e-20]), np.array([1.0, 0.0]))
+    # round-off there (1e-14 of the scale) stays below the floor
+    row, rel = row_violation(a, np.array([-1e4, -1e-10]), np.array([1.0, 0.0]))
     assert rel < 1e-3
