@@ -87,10 +87,15 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 
 def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
-    """Two reduced solutions agree on the elements ok (impulse scale lam, N s)."""
+    """Two reduced solutions agree on the elements ok (impulse scale lam, N s): velocities
+    and response maps to 1e-9 absolute or 1e-8 relative (nearly singular assignments of the
+    random problems reach |v'| ~ 6e4 m/s and response entries ~ 40, where the two
+    elimination orders differ by ~1e-13 relative times the conditioning)."""
     assert ok.any()
     for f in ("v_next", "response", "gap_rate", "vt"):
-        np.testing.assert_allclose(getattr(new, f)[ok], getattr(ref, f)[ok], atol=1e-9)
+        np.testing.assert_allclose(
+            getattr(new, f)[ok], getattr(ref, f)[ok], rtol=1e-8, atol=1e-9, err_msg=f
+        )
     for f in ("ln", "lt"):
         err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
         assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
@@ -162,6 +167,7 @@ def test_solve_reduced_edge_point_mass_matches_reference(backend: str) -> None:
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.3, 0.6]))
+@example(seed=175, p_contact=0.6)  # found by hypothesis: 2.3e-7 on v' = 59 m/s (4e-9 relative)
 def test_compiled_backend_equals_numpy_backend(seed: int, p_contact: float) -> None:
     """The compiled kernel and the numpy path solve the same equations: equal to round-off
     on every well-posed, well-conditioned assignment, with and without impulse sensitivity."""
