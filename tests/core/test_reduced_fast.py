@@ -88,14 +88,17 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
     """Two reduced solutions agree on the elements ok (impulse scale lam, N s): velocities
-    and response maps to 1e-9 absolute or 1e-8 relative (nearly singular assignments of the
-    random problems reach |v'| ~ 6e4 m/s and response entries ~ 40, where the two
-    elimination orders differ by ~1e-13 relative times the conditioning)."""
+    and response maps to 1e-9 absolute plus 1e-8 of the largest entry of the same element's
+    vector / matrix (nearly singular assignments of the random problems reach |v'| ~ 6e4 m/s
+    and response entries ~ 40, where the two elimination orders differ by ~1e-13 relative
+    times the conditioning, in every entry of the element)."""
     assert ok.any()
     for f in ("v_next", "response", "gap_rate", "vt"):
-        np.testing.assert_allclose(
-            getattr(new, f)[ok], getattr(ref, f)[ok], rtol=1e-8, atol=1e-9, err_msg=f
-        )
+        a, b = getattr(new, f)[ok], getattr(ref, f)[ok]
+        axes = tuple(range(1, b.ndim))
+        scale = np.abs(b).max(axis=axes, keepdims=True) if axes else np.abs(b)
+        err = np.abs(a - b)
+        assert np.all(err <= 1e-9 + 1e-8 * scale), (f, float(np.max(err - 1e-8 * scale)))
     for f in ("ln", "lt"):
         err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
         assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
