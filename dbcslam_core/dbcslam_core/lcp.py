@@ -65,19 +65,19 @@ class LCPResiduals:
         return max(self.z_neg, self.w_neg, self.comp)
 
 
-def row_violation(a: F64, b: F64, z: F64) -> tuple[int, float]:
+def row_violation(a: F64, b: F64, z: F64, *, floor: float = 0.0) -> tuple[int, float]:
     """The row of the largest violation of w = A z + b >= 0 relative to that row's
-    magnitudes sum_j |A_ij z_j| + |b_i| (floor: 1e-9 of the problem's scale |b| + |A| |z|,
-    so that round-off in rows with (almost) nothing in them does not count), and that
-    relative violation
-    (0 when w >= 0)."""
+    magnitudes sum_j |A_ij z_j| + |b_i|, and that relative violation (0 when w >= 0). The
+    magnitudes are floored at 1e-9 of the problem's scale |b| + |A| |z| and at `floor` (in
+    the units of w), so that round-off in rows with (almost) nothing in them does not
+    count."""
     w = a @ z + b
     viol = np.maximum(-w, 0.0)
     if not np.any(viol > 0.0):
         return -1, 0.0
     terms = np.abs(a) @ np.abs(z) + np.abs(b)
-    floor = 1e-9 * (float(np.max(np.abs(b))) + float(np.max(np.abs(a))) * float(np.max(z)))
-    rel = viol / np.maximum(terms, max(floor, 1e-300))
+    scale = float(np.max(np.abs(b))) + float(np.max(np.abs(a))) * float(np.max(z))
+    rel = viol / np.maximum(terms, max(1e-9 * scale, floor, 1e-300))
     row = int(np.argmax(rel))
     return row, float(rel[row])
 
@@ -136,6 +136,10 @@ class LemkeSolver:
     lets an impulse-row violation pass whose size is the row's whole content (a tangential
     impulse without normal impulse: rel 1.0). Degenerate but acceptable bases of the
     synthetic pushes reach 1e-3."""
+    row_floor: float = 1e-12
+    """Violations below this (the units of w: m/s or N s in this package's SI contact LCPs)
+    never count in the row check: a push LCP whose data are all round-off (|b| ~ 1e-16) has
+    rows of nothing but round-off."""
 
     def solve(self, A: ArrayLike, b: ArrayLike) -> F64:
         """Solve w = A z + b, 0 <= z _|_ w >= 0; raises SolverError if Lemke fails."""
@@ -265,7 +269,7 @@ class LemkeSolver:
                 f"(size {n}); numerically unreliable"
             )
             raise SolverError(msg)
-        row, rel = row_violation(a, b, z)
+        row, rel = row_violation(a, b, z, floor=self.row_floor)
         if rel > self.row_tol:
             msg = (
                 f"Lemke terminated but w[{row}] < 0 by {rel:.3g} of the magnitudes in that row "
