@@ -68,7 +68,13 @@ from dbcslam_core.resampling import (
     normalise_log_weights,
 )
 from dbcslam_core.row_pool import RowPool, resolve_threads
-from dbcslam_core.scenario import Disk, Scenario
+from dbcslam_core.scenario import (
+    Disk,
+    Scenario,
+    edge_scenario,
+    gripper_scenario,
+    push_scenario,
+)
 from dbcslam_core.transition import (
     TransitionParams,
     contact_gap,
@@ -77,14 +83,14 @@ from dbcslam_core.transition import (
     soft_modes,
 )
 
-__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput"]
+__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput", "warm_up_kernels"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-_WARM = False  # the compiled kernels ran once in this process (`DbcSlamFilter.warm_up`)
+_WARM: set[str] = set()  # scenario kinds whose compiled kernels ran in this process (warm_up)
 
 
 @dataclass(frozen=True)
@@ -1615,11 +1621,12 @@ class DbcSlamFilter:
         """Run the compiled kernels once, on a throwaway two-particle copy of this filter
         (same scenario and configuration, its own random numbers), so that the first real
         step does not pay numba's loading of the cached machine code (~0.3 s) or, on a
-        fresh install, its compilation (~5 s). Once per process; returns the seconds spent
-        (0 when already warm or without numba). A node calls it when it is configured,
-        before the first pose arrives."""
-        global _WARM  # noqa: PLW0603 - once per process, by design
-        if _WARM or not kernels.AVAILABLE:
+        fresh install, its compilation (~13 s for the gripper's kernels, ~1.5 s more for the
+        push's support friction). Once per process and scenario kind; returns the seconds
+        spent (0 when already warm or without numba). A node calls :func:`warm_up_kernels`
+        when it starts and this when it is configured, before the first pose arrives."""
+        kind = self.scenario.kind
+        if kind in _WARM or not kernels.AVAILABLE:
             return 0.0
         started = time.perf_counter()
         probe = DbcSlamFilter(
@@ -1635,7 +1642,7 @@ class DbcSlamFilter:
         with contextlib.suppress(Exception):
             probe.step(pose, inputs)
             probe.step(pose, inputs)
-        _WARM = True
+        _WARM.add(kind)
         return time.perf_counter() - started
 
     def with_config(self, **changes: Any) -> DbcSlamFilter:
@@ -1643,3 +1650,33 @@ class DbcSlamFilter:
         return DbcSlamFilter(
             self.scenario, replace(self.config, **changes), self.rng, self.extensions
         )
+
+
+_WARM_UP_SQUARE = ((-0.045, -0.045), (0.045, -0.045), (0.045, 0.045), (-0.045, 0.045))
+"""Outline (m) of the pushed block of :func:`warm_up_kernels` (a 9 cm square)."""
+
+
+def warm_up_kernels(kinds: tuple[str, ...] = ("gripper", "push", "edge")) -> float:
+    """:meth:`DbcSlamFilter.warm_up` for the built-in scenario of each kind in ``kinds``
+    (their preset configurations): loads, or on a fresh install compiles (~15 s in all on a
+    2-core machine), the machine code every scenario kind needs. A node calls it at start-up,
+    before it subscribes, so a first /scenario never waits for a compilation while poses
+    arrive; ``make venv`` calls it once so the cache is filled at install. Returns the
+    seconds spent (0 without numba or when all are warm)."""
+    builders: dict[str, Callable[[], Scenario]] = {
+        "edge": edge_scenario,
+        "gripper": gripper_scenario,
+        "push": lambda: push_scenario(_WARM_UP_SQUARE, mass=0.84, support_pair="surface"),
+    }
+    spent = 0.0
+    for kind in kinds:
+        try:
+            scenario = builders[kind]()
+        except KeyError as err:
+            msg = f"no built-in scenario of kind {kind!r}; valid: {sorted(builders)}"
+            raise ModelError(msg) from err
+        probe = DbcSlamFilter(
+            scenario, FilterConfig.preset(kind, particles=2), np.random.default_rng(0)
+        )
+        spent += probe.warm_up()
+    return spent

@@ -274,3 +274,26 @@ def test_gap_closure_softens_the_contact_velocity_jump(gripper_traj: Trajectory)
         jumps.append(-gap_rate_v)
     assert jumps[0] == pytest.approx(0.3e-3 / sc.dt, rel=1e-6)
     assert jumps[1] == pytest.approx(0.05 * 0.3e-3 / sc.dt, rel=1e-6)
+
+
+def test_warm_up_kernels_covers_every_kind_once() -> None:
+    """After `warm_up_kernels` every built-in kind is warm: a second call and a filter's own
+    warm-up spend nothing (what a node relies on to start before the first /scenario)."""
+    from dbcslam_core import kernels, rbpf
+    from dbcslam_core.scenario import gripper_scenario
+
+    rbpf.warm_up_kernels()
+    if kernels.AVAILABLE:
+        assert {"edge", "gripper", "push"} <= rbpf._WARM
+    assert rbpf.warm_up_kernels() == 0.0
+    filt = DbcSlamFilter(
+        gripper_scenario(), FilterConfig.preset("gripper", particles=4), np.random.default_rng(0)
+    )
+    assert filt.warm_up() == 0.0
+
+
+def test_warm_up_kernels_rejects_an_unknown_kind() -> None:
+    from dbcslam_core.rbpf import warm_up_kernels
+
+    with pytest.raises(ModelError, match=r"'box'.*valid: \['edge', 'gripper', 'push'\]"):
+        warm_up_kernels(("box",))

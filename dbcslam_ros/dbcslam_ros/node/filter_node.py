@@ -42,6 +42,7 @@ from rclpy.node import Node
 from rclpy.utilities import ok, try_shutdown
 
 from dbcslam_core.errors import DbcSlamError
+from dbcslam_core.rbpf import warm_up_kernels
 from dbcslam_core.scenario import Scenario
 from dbcslam_ros import contract
 from dbcslam_ros import runtime as rt
@@ -126,6 +127,11 @@ class FilterCore:
         self._publish_msg = publish
         self.params: dict[str, Any] = dict(params)
         check_params(self.params)
+        # the compiled kernels of every scenario kind, before the node subscribes: a fresh
+        # install compiles them here (~15 s), not while the first scenario's poses arrive
+        self.warm_up_s = warm_up_kernels()
+        if self.warm_up_s > 1.0:
+            self.log.info(f"compiled the filter kernels in {self.warm_up_s:.1f} s (cached now)")
         self.frame = str(self.params["frame_id"])
         self.session: FilterSession | None = None
         self.scenario: Scenario | None = None
