@@ -124,3 +124,18 @@ def test_every_registered_command_has_help_with_examples(
     out = capsys.readouterr().out
     assert f"dbcslam {name}" in out
     assert "examples:" in out
+
+
+@pytest.mark.parametrize("command", ["demo", "filter"])
+def test_help_texts_name_the_live_defaults(
+    command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The live particle defaults quoted by `dbcslam demo --help` and `dbcslam filter --help`
+    are the node's (`LIVE_PARTICLES`): a changed default must change the texts too."""
+    from dbcslam_ros.node.params import LIVE_PARTICLES
+
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    flat = " ".join(capsys.readouterr().out.split())
+    quoted = ", ".join(f"{kind} {n}" for kind, n in LIVE_PARTICLES.items())
+    assert quoted in flat, f"{command} --help does not quote the live defaults ({quoted})"
