@@ -14,7 +14,10 @@ of `contact_modes.Mode`):
 With a friction bank (`FilterConfig.friction_bank`) each particle carries `copies` = B copies
 of its continuous state and mode marginals, one per joint friction hypothesis (rows
 i * B + b of q, v, fric, modes; their friction axis has length 1), and its friction belief
-is `bank[i, b]`; log_w and the history stay per particle.
+is `bank[i, b]`; log_w and the history stay per particle. With hypothesis resampling
+(`FilterConfig.bank_resampling = "hypothesis"`) each copy also carries its log weight within
+its hypothesis, copy_log_w[i, b], and `resample_copies` resamples each hypothesis' copies
+separately.
 
 Resampling moves all of it as one object (`ParticleSet.resample`).
 """
@@ -87,6 +90,7 @@ class ParticleSet:
     history: MapHistory
     bank: FloatArray | None = None
     copies: int = 1
+    copy_log_w: FloatArray | None = None
 
     @property
     def size(self) -> int:
@@ -112,3 +116,15 @@ class ParticleSet:
             self.bank = self.bank[idx]
         self.history.take(idx)
         self.log_w = np.zeros(idx.size)
+
+    def resample_copies(self, anc: IntArray, lead: int) -> None:
+        """Replace copy b of particle i by copy b of particle anc[i, b] (P, B): each
+        hypothesis' copies resampled on their own, with equal copy weights afterwards; the
+        history follows hypothesis `lead`'s ancestry (the particle weights are untouched)."""
+        rows = (anc * self.copies + np.arange(self.copies)[None, :]).reshape(-1)
+        self.q = self.q[rows]
+        self.v = self.v[rows]
+        self.fric = self.fric[rows]
+        self.modes = self.modes[rows]
+        self.history.take(anc[:, lead])
+        self.copy_log_w = np.zeros(anc.shape)

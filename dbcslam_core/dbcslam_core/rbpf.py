@@ -162,6 +162,44 @@ class FilterConfig:
       (the copies would need IMM-style mixing for a coefficient that changes between
       steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
       the reduced solves and proposals are as many as without the bank.
+    * bank_switch (probability per step, in [0, 1)): with the bank, IMM mixing of a
+      particle's copies at the start of every step after friction_hold_steps: the
+      coefficient is modelled as switching to each other hypothesis with probability
+      bank_switch / (B - 1) per step, the bank belief is predicted through that transition
+      and copy b restarts from copy a's state (q, v, mode marginals) with the mixing
+      probability T[a, b] bank[a] / sum_a' T[a', b] bank[a'] (one draw per copy). A copy whose
+      belief fell below ~bank_switch is thereby re-seeded from the leading copy instead of
+      drifting away unobserved, so the belief can come back when later evidence favours it.
+      0 = no mixing (the time-invariant coefficient).
+    * bank_resampling: how the bank resamples. `particle`: a particle's copies move together
+      (resampled on the particle's evidence log sum_b bank[i, b] p(o | copy b)). `hypothesis`:
+      B fixed-friction sub-filters of P copies each, with common random numbers (shared
+      draws and one resampling stream for all sub-filters): copy b of every particle carries
+      its own weight within hypothesis b and the copies of each hypothesis are resampled on
+      those (all hypotheses at once, when the smallest ESS < ess_threshold * P); the friction
+      belief is shared by all particles, pi(b) proportional to prior(b) prod_l Z_l(b) with
+      Z_l(b) = sum_i W_ib p(o_l | copy i, b) the sub-filter's marginal likelihood (held at the
+      prior during friction_hold_steps). No copy drifts unselected behind a leading one, and
+      a particle's belief cannot turn one-hot on its own trajectory; the particle weights stay
+      uniform and bank[i, b] = P W_ib pi(b) (so w_i bank[i, b] is the row's weight). The
+      options below (switch, tempering, cap, gate) act on per-particle beliefs: `particle`
+      only.
+    * bank_tempering (dimensionless, (0, 1]) and bank_step_cap (nats, > 0, or None): the
+      bank belief update uses the copies' log evidence tempered, bank[i, b] proportional to
+      bank[i, b] p(o | copy b)^bank_tempering, and, with a cap, each copy's log evidence
+      floored at the particle's best copy's minus bank_step_cap (one step's friction log
+      likelihood ratio at most the cap). A particle's evidence (its weight increment) stays
+      log sum_b bank[i, b] p(o | copy b). 1.0 / None = the exact update. Rationale: one
+      particle's copies are single sampled trajectories whose likelihood ratios are sharper
+      than the marginal p(o_l | o_<l, b) (on pybullet gripper runs the copies' per-step
+      ratios were several times the 500-particle fixed-friction filters' marginal ones).
+    * bank_surprise_gate (nats, > 0, or None) and bank_surprise_window (steps): with the bank,
+      the belief is not updated in a step whose log predictive likelihood
+      log p(o_l | o_<l) falls more than bank_surprise_gate below the median of the last
+      bank_surprise_window observed steps (at least 5 of them): the particle cloud lost
+      track of the observation (e.g. at an impact with few particles), and the copies'
+      likelihood ratios then reflect which copy happens to lie nearest, not the friction.
+      None = no gate.
     * threads: threads of the compiled kernels over ranges of rows (`row_pool`): None = the
       CPUs this process may use, at most 4; 1 = the calling thread only. Small problems
       (below ~256 live entries per thread) run in the calling thread anyway. The estimates
@@ -201,6 +239,12 @@ class FilterConfig:
     gap_closure: float = 1.0
     gap_tolerance: float | None = None
     friction_bank: bool = False
+    bank_switch: float = 0.0
+    bank_resampling: str = "particle"
+    bank_tempering: float = 1.0
+    bank_step_cap: float | None = None
+    bank_surprise_gate: float | None = None
+    bank_surprise_window: int = 20
     threads: int | None = None
 
     def __post_init__(self) -> None:
@@ -255,6 +299,42 @@ class FilterConfig:
                 "friction_bank needs the time-invariant parameter_model 'reuse' (a coefficient "
                 f"that changes between steps would need IMM mixing), got {self.parameter_model!r}"
             )
+            raise ModelError(msg)
+        if not 0.0 < self.bank_tempering <= 1.0:
+            msg = f"bank_tempering must be in (0, 1], got {self.bank_tempering}"
+            raise ModelError(msg)
+        if self.bank_step_cap is not None and not (
+            math.isfinite(self.bank_step_cap) and self.bank_step_cap > 0.0
+        ):
+            msg = f"bank_step_cap must be None or > 0 nats, got {self.bank_step_cap}"
+            raise ModelError(msg)
+        if self.bank_surprise_gate is not None and not (
+            math.isfinite(self.bank_surprise_gate) and self.bank_surprise_gate > 0.0
+        ):
+            msg = f"bank_surprise_gate must be None or > 0 nats, got {self.bank_surprise_gate}"
+            raise ModelError(msg)
+        if self.bank_surprise_window < 5:
+            msg = f"bank_surprise_window must be >= 5 steps, got {self.bank_surprise_window}"
+            raise ModelError(msg)
+        if self.bank_resampling not in ("particle", "hypothesis"):
+            msg = (
+                f"bank_resampling must be 'particle' or 'hypothesis', got {self.bank_resampling!r}"
+            )
+            raise ModelError(msg)
+        if self.bank_resampling == "hypothesis" and (
+            self.bank_switch > 0.0
+            or self.bank_tempering != 1.0
+            or self.bank_step_cap is not None
+            or self.bank_surprise_gate is not None
+        ):
+            msg = (
+                "bank_resampling 'hypothesis' shares one friction belief: bank_switch, "
+                "bank_tempering, bank_step_cap and bank_surprise_gate act on per-particle "
+                "beliefs ('particle' resampling) and must keep their defaults"
+            )
+            raise ModelError(msg)
+        if not 0.0 <= self.bank_switch < 1.0:
+            msg = f"bank_switch must be a probability in [0, 1), got {self.bank_switch}"
             raise ModelError(msg)
 
     @classmethod
@@ -506,6 +586,7 @@ class DbcSlamFilter:
         self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
         self._initialised = False
         self._step = 0
+        self._recent_log_ml: list[float] = []  # `_surprised`: recent log p(o_l | o_<l)
         self._joints_prev: FloatArray | None = None
         self._joint_filter = JointSmoother(
             len(scenario.joints),
@@ -581,6 +662,8 @@ class DbcSlamFilter:
         # hypothesis _sub_b[j]); without the bank n_sub = 1 and the arrays carry all B
         self._bank = cfg.friction_bank and cfg.frozen_friction is None and self.n_b > 1
         self._n_sub = self.n_b if self._bank else 1
+        self._by_hypothesis = self._bank and cfg.bank_resampling == "hypothesis"
+        self._log_pi = np.zeros(self._n_sub)  # hypothesis resampling: log pi(b)
         self.n_fb = 1 if self._bank else self.n_b
         self._sub_b: IntArray | None = (
             np.tile(np.arange(self.n_b), cfg.particles) if self._bank else None
@@ -719,7 +802,11 @@ class DbcSlamFilter:
         ).copy()
         if ps.bank is not None:
             ps.bank = np.tile(self._prior_b, (p, 1))
+            if self._by_hypothesis:
+                ps.copy_log_w = np.zeros((p, self._n_sub))
+                self._log_pi = np.log(self._prior_b)
         ps.history.clear()
+        self._recent_log_ml.clear()
         self._initialised = True
 
     def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
@@ -761,6 +848,7 @@ class DbcSlamFilter:
         proposal and the sampled state, the closed-form discrete posterior, eq. (7), weights
         and resampling, and the estimate.
         """
+        self._mix_bank()
         inp = self._read_inputs(observation, inputs, force)
         free = self._free_motion(inp)
         pred = self._predict_modes(free)
@@ -772,7 +860,11 @@ class DbcSlamFilter:
             dyn = self._hypothesis_dynamics(ent, free, inp)
             prop = self._propose(ent, dyn, inp)
             post = self._discrete_posterior(ent, dyn, prop)
-        incr = prop.incr if self._n_sub == 1 else self._bank_evidence(prop.incr, post)
+        incr = (
+            prop.incr
+            if self._n_sub == 1
+            else self._bank_evidence(prop.incr, post, inp.lin is not None or inp.force is not None)
+        )
         self._update_beliefs(post)
         log_ml = self._reweight(incr, inp)
         w = self._move(prop, post, inp.joints)
@@ -1236,7 +1328,26 @@ class DbcSlamFilter:
         )
         return _Posterior(fric_post, fric_pair, modes_post, marg_post, pair_in, p_contact)
 
-    def _bank_evidence(self, incr_rows: FloatArray, post: _Posterior) -> FloatArray:
+    def _surprised(self, incr: FloatArray, observed: bool) -> bool:
+        """`FilterConfig.bank_surprise_gate`: whether this step's log predictive likelihood
+        (from the particles' evidence incr (P,)) lies more than the gate below the median of
+        the recent observed steps; records the step."""
+        gate = self.config.bank_surprise_gate
+        if gate is None or not observed:
+            return False
+        w_prev, _ = normalise_log_weights(self.particles.log_w)
+        with np.errstate(divide="ignore"):
+            log_ml = float(_logsumexp(np.log(w_prev) + incr, axis=0))
+        recent = self._recent_log_ml
+        surprised = len(recent) >= 5 and float(np.median(recent)) - log_ml > gate
+        if np.isfinite(log_ml):
+            recent.append(log_ml)
+            del recent[: -self.config.bank_surprise_window]
+        return surprised
+
+    def _bank_evidence(
+        self, incr_rows: FloatArray, post: _Posterior, observed: bool = True
+    ) -> FloatArray:
         """Friction bank: each particle's evidence (P,) = log sum_b bank[i, b] p(o | copy b)
         from its copies' evidence (P B,); the bank belief becomes the posterior (held at the
         prior during `friction_hold_steps`); the per-pair friction marginals and P(in
@@ -1244,19 +1355,126 @@ class DbcSlamFilter:
         ps = self.particles
         assert ps.bank is not None
         n_p = ps.count
+        cfg = self.config
+        ev = incr_rows.reshape(n_p, self._n_sub)
+        if self._by_hypothesis:
+            return self._hypothesis_evidence(ev, post)
         with np.errstate(divide="ignore"):
-            joint = np.log(ps.bank) + incr_rows.reshape(n_p, self._n_sub)
+            log_bank = np.log(ps.bank)
+        joint = log_bank + ev
         incr = self._lse(joint, 1)
-        if self._step > self.config.friction_hold_steps:
-            ok = np.isfinite(incr)
+        surprised = self._surprised(incr, observed)
+        if self._step > cfg.friction_hold_steps and not surprised:
+            if cfg.bank_tempering != 1.0 or cfg.bank_step_cap is not None:
+                ev_b = ev
+                if cfg.bank_step_cap is not None:
+                    best = np.max(ev, axis=1, keepdims=True)
+                    with np.errstate(invalid="ignore"):
+                        ev_b = np.where(
+                            np.isfinite(best), np.maximum(ev, best - cfg.bank_step_cap), ev
+                        )
+                joint = log_bank + cfg.bank_tempering * ev_b
+            norm = self._lse(joint, 1)
+            ok = np.isfinite(norm)
             ps.bank = np.where(
-                ok[:, None], np.exp(joint - np.where(ok, incr, 0.0)[:, None]), ps.bank
+                ok[:, None], np.exp(joint - np.where(ok, norm, 0.0)[:, None]), ps.bank
             )
         post.fric_pair = self._pair_marginals(ps.bank)
         post.p_contact = np.einsum(
             "pb,pbc->pc", ps.bank, post.p_contact.reshape(n_p, self._n_sub, self.n_c)
         )
         return incr
+
+    def _hypothesis_evidence(self, ev: FloatArray, post: _Posterior) -> FloatArray:
+        """Hypothesis resampling (`FilterConfig.bank_resampling`): the copies' evidence ev
+        (P, B) updates their weights within each hypothesis and the shared belief pi(b) by the
+        sub-filters' marginal likelihoods Z(b); returns each particle's evidence (P,), the
+        same log sum_b pi(b) Z(b) for all (the step's log predictive likelihood; the particle
+        weights stay uniform)."""
+        ps = self.particles
+        assert ps.copy_log_w is not None
+        n_p = ps.count
+        lw = ps.copy_log_w - self._lse(ps.copy_log_w.T, 1)[None, :]  # normalised per column
+        new = lw + ev
+        log_z = self._lse(new.T, 1)  # (B,) log Z(b)
+        ok = np.isfinite(log_z)
+        with np.errstate(invalid="ignore"):
+            step_ml = self._lse((self._log_pi + log_z)[None, :], 1)  # (1,)
+        if self._step > self.config.friction_hold_steps and np.isfinite(step_ml[0]):
+            log_pi = self._log_pi + np.where(ok, log_z, -np.inf)
+            self._log_pi = log_pi - self._lse(log_pi[None, :], 1)
+        ps.copy_log_w = np.where(ok[None, :], new, lw)  # a column without support keeps lw
+        ps.bank = self._hypothesis_bank()
+        # every particle's friction is the shared pi; its P(in contact) is over its copies
+        # weighted by their row weights (normalised per particle)
+        pi = np.exp(self._log_pi)
+        post.fric_pair = np.repeat(self._pair_marginals(pi[None, :]), n_p, axis=0)
+        tot = ps.bank.sum(axis=1, keepdims=True)
+        own = np.divide(ps.bank, tot, out=np.tile(pi, (n_p, 1)), where=tot > 0.0)
+        post.p_contact = np.einsum(
+            "pb,pbc->pc", own, post.p_contact.reshape(n_p, self._n_sub, self.n_c)
+        )
+        return np.full(n_p, step_ml[0])
+
+    def _hypothesis_bank(self) -> FloatArray:
+        """bank[i, b] = P W_ib pi(b) (hypothesis resampling): with the uniform particle
+        weights 1 / P, w_i bank[i, b] = W_ib pi(b) is the row's weight and sum_i w_i bank[i]
+        = pi."""
+        ps = self.particles
+        assert ps.copy_log_w is not None
+        lw = ps.copy_log_w
+        w_copy = np.exp(lw - self._lse(lw.T, 1)[None, :])
+        return np.asarray(ps.count * w_copy * np.exp(self._log_pi)[None, :])
+
+    def _resample_hypotheses(self) -> tuple[float, bool]:
+        """Hypothesis resampling: when the smallest ESS of the hypotheses' copy weights
+        falls below the threshold, resample every hypothesis' copies with one random stream
+        (common random numbers); returns (smallest ESS, resampled)."""
+        ps = self.particles
+        assert ps.copy_log_w is not None
+        n_p = ps.count
+        w_copy = np.exp(ps.copy_log_w - self._lse(ps.copy_log_w.T, 1)[None, :])
+        ess = float(np.min(1.0 / np.sum(w_copy**2, axis=0)))
+        if ess >= self.config.ess_threshold * n_p:
+            return ess, False
+        seed = int(self.rng.integers(2**63))
+        anc = np.stack(
+            [
+                self._resampler(w_copy[:, b], np.random.default_rng(seed))
+                for b in range(self._n_sub)
+            ],
+            axis=1,
+        )
+        ps.resample_copies(anc, int(np.argmax(self._log_pi)))
+        ps.bank = self._hypothesis_bank()
+        return ess, True
+
+    def _mix_bank(self) -> None:
+        """IMM mixing of the bank's copies (`FilterConfig.bank_switch`): predict each
+        particle's bank belief through the switching transition T and restart copy b from
+        copy a ~ T[a, b] bank[a] (its q, v and mode marginals); no-op without the bank, with
+        bank_switch = 0, or while the belief is held at the prior."""
+        eps = self.config.bank_switch
+        ps = self.particles
+        if (
+            ps.bank is None
+            or eps <= 0.0
+            or not self._initialised
+            or self._step <= self.config.friction_hold_steps
+        ):
+            return
+        n_p, n_b = ps.bank.shape
+        trans = np.full((n_b, n_b), eps / (n_b - 1))
+        np.fill_diagonal(trans, 1.0 - eps)
+        joint = ps.bank[:, :, None] * trans[None]  # (P, a, b): bank[a] T[a, b]
+        pred = joint.sum(axis=1)  # (P, b)
+        mix = joint / pred[:, None, :]  # P(source a | target b)
+        cdf = np.cumsum(mix, axis=1)  # over a
+        u = self.rng.random((n_p, 1, n_b))
+        src = np.minimum((u > cdf).sum(axis=1), n_b - 1)  # (P, b) source copy
+        rows = (np.arange(n_p)[:, None] * n_b + src).reshape(-1)
+        ps.q, ps.v, ps.modes = ps.q[rows], ps.v[rows], ps.modes[rows]
+        ps.bank = pred
 
     def _shared_draws(
         self, draw: Callable[[tuple[int, ...]], FloatArray], shape: tuple[int, ...]
@@ -1345,6 +1563,8 @@ class DbcSlamFilter:
     def _maybe_resample(self, w: FloatArray) -> tuple[float, bool]:
         """Resample when the effective sample size falls below the threshold; returns
         (ESS before resampling, whether the set was resampled)."""
+        if self._by_hypothesis:
+            return self._resample_hypotheses()
         ess = effective_sample_size(w)
         if ess >= self.config.ess_threshold * self.particles.count:
             return ess, False
