@@ -39,8 +39,15 @@ experiments: venv
 	$(BIN)/python -m dbcslam_research.experiments_sim
 	$(BIN)/python -m dbcslam_research.readme_results
 
+# the discrepancy benchmark of every scenario (30 + 30 draws each: hours) and the MIT
+# full-push NMSE table; `make science MITPUSH=DIR` for another copy of the dataset
+MITPUSH ?= ../shared/data/mit-push
+SCIENCE := dbcslam_ros/research/results/science
 science: venv
-	$(BIN)/python -m dbcslam_research.science --out dbcslam_ros/research/results/science
+	$(BIN)/python -m dbcslam_research.science --scenario edge --out $(SCIENCE)
+	$(BIN)/python -m dbcslam_research.science --scenario gripper --out $(SCIENCE)/gripper
+	$(BIN)/python -m dbcslam_research.science --scenario push --out $(SCIENCE)/push
+	$(BIN)/python -m dbcslam_research.push_nmse $(MITPUSH) --out dbcslam_ros/research/results/push_nmse
 
 bench: venv
 	$(BIN)/python -m dbcslam_research.bench
