@@ -298,3 +298,17 @@ def test_pusher_wrench_for_a_scenario_without_pusher_is_rejected(node: Any) -> N
     fake, filt = node
     fake.subs["/pusher/wrench"](wrench_stamped(T0, 1.0, 0.0))
     assert filt.session is not None and filt.session.rejected["no_pusher"] == 1
+
+
+def test_the_core_warms_every_scenario_kind_before_a_scenario(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The node's core loads the compiled kernels of every kind when it is built (before it
+    subscribes), so the first /scenario never waits for numba while poses arrive."""
+    from dbcslam_core import kernels, rbpf
+
+    monkeypatch.setattr(rbpf, "_WARM", set())
+    FakeNode().build()
+    expected = {"edge", "gripper", "push"} if kernels.AVAILABLE else set()
+    warmed = set(rbpf._WARM)
+    assert warmed == expected
