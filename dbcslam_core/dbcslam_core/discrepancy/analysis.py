@@ -30,13 +30,21 @@
    z x its own standard error over the second's best seed), both are named (the data
    cannot tell them apart). mass_scale k and input_gain 1/k predict the same motion
    in this model (gravity and friction scale with the mass): when the winner is one of
-   them and the other is clear too, both are always named (`EQUIVALENT`).
-5. confirm: a winner whose margin (delta_loglik - penalty) is below `confirm_noise` times
-   the nominal model's held-out seed std is close to the Monte-Carlo noise: the nominal
-   model and the winner are scored again on the held-out runs with `confirm_factor` times
-   the particles (same seeds), and the winner is named only if it still beats the nominal
-   model there (`beats`, margin k/2 ln N + min_margin); otherwise it is marked not clear
-   and the next clear candidate goes through steps 4-5. Measured on benchmark push clean
+   them and the other is a candidate too, both are always named (`EQUIVALENT`), whether
+   or not the other's own fit passed (benchmark gripper draw 5, mass_scale 1.385 hidden:
+   input_gain 0.69 fitted, mass_scale fitted at 1.6 lost track on the held-out run).
+5. confirm: a near miss (all seeds run, its held-out evidence above the nominal model's
+   best seed by k/2 ln N + min_margin, but not by its own z standard errors more) is
+   scored again with `confirm_factor` times the particles (same seeds) and counts as
+   clear if it beats the nominal model there (benchmark gripper draw 5, 150 particles:
+   input_gain 0.69 scored 5662 / 5646 / 4429 nats held out, the nominal 5316 / 1401 /
+   4889: +346 nats, but the penalty with its seed spread was 1239). A winner whose margin
+   (delta_loglik - penalty) is below `confirm_noise` times the nominal model's held-out
+   seed std is close to the Monte-Carlo noise: the nominal model and the winner are
+   scored again on the held-out runs with `confirm_factor` times the particles (same
+   seeds), and the winner is named only if it still beats the nominal model there
+   (`beats`, margin k/2 ln N + min_margin); otherwise it is marked not clear and the next
+   clear candidate goes through steps 4-5. Measured on benchmark push clean
    draw 0 (pusher and support mu 0.1, held-out run, 150 particles): the nominal model
    scored 7824 / 7831 / 7905 nats with seeds 0 / 1 / 2 and 8013 / 8025 / 8023 with seeds
    3 / 4 / 5, friction_scale 0.6 8025-8038 with all six: its held-out gain of +133 nats
@@ -382,7 +390,7 @@ def verdict(
     win = clear[0]
     for pair in EQUIVALENT:
         if win.effect in pair:
-            other = [c for c in clear[1:] if c.effect in pair]
+            other = [c for c in cands if c.effect in pair and c.effect != win.effect]
             if other:
                 return win, (win.effect, other[0].effect)
     if len(clear) > 1:
@@ -419,14 +427,15 @@ def confirm(
     nom_held: HeldScores | None,
     say: Callable[[str], None],
 ) -> _Confirmed:
-    """Steps 4-5 of the module docstring: the verdict, a winner close to the noise
-    re-scored with `confirm_factor` x the particles before it is named."""
+    """Steps 4-5 of the module docstring: near misses and a winner close to the noise
+    re-scored with `confirm_factor` x the particles, then the verdict."""
     out = list(cands)
     n_s = len(prep.seeds)
-    win, amb = verdict(out, cfg, n_s)
-    noise = 0.0 if nom_held is None or not math.isfinite(nom_held.std) else nom_held.std
-    if cfg.confirm_factor <= 1:
+    if cfg.confirm_factor <= 1 or nom_held is None:
+        win, amb = verdict(out, cfg, n_s)
         return _Confirmed(win, amb, out, 0, 0.0, ())
+    noise = nom_held.std if math.isfinite(nom_held.std) else 0.0
+    n_h = max(prep.nominal_held.n_obs, 2)
     scfg = ScoreConfig(
         particles=cfg.particles * cfg.confirm_factor,
         seed=cfg.seed,
@@ -434,18 +443,18 @@ def confirm(
         filter_overrides=cfg.filter_overrides,
     )
     lines: list[str] = []
+    confirmed: set[str] = set()
     with Scorer(scfg, say) as big:
-        while win is not None and _margin_key(win) < cfg.confirm_noise * noise:
-            hyp = Hypothesis.make(win.effect, win.params)
+
+        def retest(c: CandidateFit, why: str) -> bool:
+            hyp = Hypothesis.make(c.effect, c.params)
             big.prefetch((h, prep.held, s) for h in (NOMINAL, hyp) for s in prep.seeds)
             nom = held_scores(NOMINAL, prep.held, big, prep.seeds)
             got = held_scores(hyp, prep.held, big, prep.seeds)
-            n_h = max(prep.nominal_held.n_obs, 2)
-            margin = 0.5 * win.n_params * math.log(n_h) + cfg.min_margin
+            margin = 0.5 * c.n_params * math.log(n_h) + cfg.min_margin
             ok = beats(got.lme, got.std, nom.best, margin=margin, z=cfg.z, n=n_s)
             line = (
-                f"{win.effect}: margin {_margin_key(win):.0f} nats < {cfg.confirm_noise:g} x "
-                f"nominal seed std {noise:.0f}; at {scfg.particles} particles held-out "
+                f"{c.effect}: {why}; at {scfg.particles} particles held-out "
                 f"{got.lme - nom.best:+.1f} nats over the nominal model's best seed "
                 f"(needed > {margin + cfg.z * got.std / math.sqrt(n_s):.1f}): "
                 f"{'confirmed' if ok else 'not confirmed'}"
@@ -453,10 +462,40 @@ def confirm(
             lines.append(line)
             say("confirmation: " + line)
             if ok:
+                confirmed.add(c.effect)
+            return ok
+
+        for i, c in enumerate(out):
+            margin = 0.5 * c.n_params * math.log(n_h) + cfg.min_margin
+            gain = c.heldout_lme - nom_held.best
+            near = not c.clear and not c.note and len(c.heldout_seeds) == n_s
+            if (
+                near
+                and gain > margin
+                and retest(
+                    c,
+                    f"near miss (held-out {gain:+.0f} nats over the nominal model's best seed, "
+                    f"within its own seed noise {c.heldout_std:.0f})",
+                )
+            ):
+                out[i] = dataclasses.replace(c, clear=True)
+        win, amb = verdict(out, cfg, n_s)
+        while (
+            win is not None
+            and win.effect not in confirmed
+            and _margin_key(win) < cfg.confirm_noise * noise
+        ):
+            why = (
+                f"margin {_margin_key(win):.0f} nats < {cfg.confirm_noise:g} x nominal seed "
+                f"std {noise:.0f}"
+            )
+            if retest(win, why):
                 break
             i = out.index(win)
             out[i] = dataclasses.replace(
-                win, clear=False, note=f"not confirmed at {scfg.particles} particles ({line})"
+                win,
+                clear=False,
+                note=f"not confirmed at {scfg.particles} particles ({lines[-1]})",
             )
             win, amb = verdict(out, cfg, n_s)
         return _Confirmed(win, amb, out, big.evaluations, big.cpu_seconds, tuple(lines))
