@@ -217,6 +217,15 @@ def test_indistinguishable_pair_is_named_together() -> None:
         [_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 1000.0, 25.0)], CFG, 3
     )
     assert win is not None and set(amb) == {"mass_scale", "input_gain"}
+    # ... and when the other's own fit failed (gripper draw 5: mass_scale fitted at 1.6 lost
+    # track held out, input_gain 0.69 won): the data cannot tell them apart either way
+    lost = replace(_cand("mass_scale", -2218.0, 0.0), clear=False)
+    win, amb = verdict([lost, _cand("input_gain", 346.0, 25.0)], CFG, 3)
+    assert win is not None and win.effect == "input_gain"
+    assert set(amb) == {"mass_scale", "input_gain"}
+    # only one of them a candidate: named alone
+    win, amb = verdict([_cand("input_gain", 346.0, 25.0)], CFG, 3)
+    assert win is not None and amb == ()
     # distinguishable effects: both only when the evidence cannot separate them
     win, amb = verdict(
         [_cand("viscous_damping", 3000.0, 20.0), _cand("support_friction", 2000.0, 25.0)],
