@@ -32,7 +32,9 @@ def test_live_run_is_measured(live_edge: bl.LiveResult) -> None:
     assert 0 < r.poses_used < r.poses_received <= r.poses_sent
     # every received pose is used, dropped for backlog, or the first (initialisation)
     assert r.poses_used + r.backlog_dropped <= r.poses_received - 1
-    assert r.model_step_ms_mean > 0 and r.model_step_ms_p95 >= r.model_step_ms_mean * 0.5
+    # no ratio of p95 to mean: one step stalled by the machine (measured: 4.7 s at load 6.8)
+    # makes the mean many times the p95 of a healthy run
+    assert r.model_step_ms_mean > 0 and r.model_step_ms_p95 > 0
     assert 0 < r.latency_ms_mean <= r.latency_ms_max
     assert r.noise_mm > 0 and math.isfinite(r.position_error_mm)
     assert r.keeps_up is not None
