@@ -5,6 +5,7 @@ belief is updated by its copies' predictive likelihoods."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -92,19 +93,25 @@ def test_bank_tracks_and_finds_the_friction(gripper_traj: Trajectory) -> None:
     assert est[-1].friction[0, cands.index(true_mu)] > 0.9
 
 
-def test_resampling_moves_a_particles_copies_together() -> None:
-    n_p, copies = 4, 3
+def _bank_particles(n_p: int, copies: int, bank: np.ndarray, **extra: Any) -> ParticleSet:
+    """A ParticleSet of n_p particles x copies rows whose row r sits at q = (r, r, r)."""
     rows = n_p * copies
-    ps = ParticleSet(
+    return ParticleSet(
         q=np.arange(rows, dtype=float)[:, None] * np.ones((1, 3)),
         v=np.zeros((rows, 3)),
         log_w=np.zeros(n_p),
         fric=np.ones((rows, 1)),
         modes=np.zeros((rows, 1, 2, 4)),
         history=MapHistory(2, n_p, 5),
-        bank=np.arange(n_p * copies, dtype=float).reshape(n_p, copies),
+        bank=bank,
         copies=copies,
+        **extra,
     )
+
+
+def test_resampling_moves_a_particles_copies_together() -> None:
+    n_p, copies = 4, 3
+    ps = _bank_particles(n_p, copies, np.arange(n_p * copies, dtype=float).reshape(n_p, copies))
     ps.resample(np.array([2, 2, 0, 3]))
     assert ps.q[:, 0].tolist() == [6, 7, 8, 6, 7, 8, 0, 1, 2, 9, 10, 11]
     assert ps.bank is not None
@@ -292,16 +299,10 @@ def test_hypothesis_resampling_validation() -> None:
 
 def test_resample_copies_resamples_each_hypothesis_on_its_own() -> None:
     n_p, copies = 3, 2
-    rows = n_p * copies
-    ps = ParticleSet(
-        q=np.arange(rows, dtype=float)[:, None] * np.ones((1, 3)),
-        v=np.zeros((rows, 3)),
-        log_w=np.zeros(n_p),
-        fric=np.ones((rows, 1)),
-        modes=np.zeros((rows, 1, 2, 4)),
-        history=MapHistory(2, n_p, 5),
-        bank=np.full((n_p, copies), 0.5),
-        copies=copies,
+    ps = _bank_particles(
+        n_p,
+        copies,
+        np.full((n_p, copies), 0.5),
         copy_log_w=np.array([[0.0, -1.0], [-2.0, 0.0], [-3.0, -4.0]]),
     )
     ps.history.push(np.arange(n_p, dtype=float)[:, None] * np.ones((1, 5)))
