@@ -75,6 +75,7 @@ from dbcslam_core.scenario import (
     gripper_scenario,
     push_scenario,
 )
+from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS
 from dbcslam_core.transition import (
     TransitionParams,
     contact_gap,
@@ -1872,10 +1873,6 @@ class DbcSlamFilter:
         )
 
 
-_WARM_UP_SQUARE = ((-0.045, -0.045), (0.045, -0.045), (0.045, 0.045), (-0.045, 0.045))
-"""Outline (m) of the pushed block of :func:`warm_up_kernels` (a 9 cm square)."""
-
-
 def warm_up_kernels(kinds: tuple[str, ...] = ("gripper", "push", "edge")) -> float:
     """:meth:`DbcSlamFilter.warm_up` for the built-in scenario of each kind in ``kinds``
     (their preset configurations): loads, or on a fresh install compiles (~15 s in all on a
@@ -1886,7 +1883,7 @@ def warm_up_kernels(kinds: tuple[str, ...] = ("gripper", "push", "edge")) -> flo
     builders: dict[str, Callable[[], Scenario]] = {
         "edge": edge_scenario,
         "gripper": gripper_scenario,
-        "push": lambda: push_scenario(_WARM_UP_SQUARE, mass=0.84, support_pair="surface"),
+        "push": lambda: push_scenario(PUSH_RECT, mass=PUSH_RECT_MASS, support_pair="surface"),
     }
     spent = 0.0
     for kind in kinds:

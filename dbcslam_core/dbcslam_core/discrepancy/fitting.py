@@ -286,7 +286,7 @@ def fit_effect_steps(
     # (space, refine, screen) per coordinate step (module docstring: a pose bias is swept
     # twice, the first sweep on the grid only)
     plan: list[tuple[ParamSpace, bool, float | None]]
-    if len(spaces) == 3:
+    if effect == "sensor_bias" and any(sp.name == "yaw" for sp in spaces):
         plan = [(sp, False, screen) for sp in spaces] + [(sp, refine, None) for sp in spaces]
     else:
         plan = [(sp, refine, screen) for sp in spaces]
