@@ -82,8 +82,10 @@ __all__ = [
     "PUSHER_WRENCH_TOPIC",
     "TRUTH_TOPICS",
     "BagArrays",
+    "BagMessages",
     "FrictionGrid",
     "MissingTopicsError",
+    "bag_arrays",
     "contact_flag_metrics",
     "evaluate_bag",
     "load_bag_arrays",
@@ -240,7 +242,11 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
     Raises:
         BagError: the bag cannot be read, or its /scenario is invalid.
     """
-    msgs = _read_messages(Path(path), salvage=salvage)
+    return bag_arrays(_read_messages(Path(path), salvage=salvage))
+
+
+def bag_arrays(msgs: BagMessages) -> BagArrays:
+    """The arrays of messages collected as a bag's (read, or written by a replay)."""
     out = BagArrays(
         path=msgs.path,
         scenario=msgs.scenario,
@@ -258,8 +264,9 @@ def load_bag_arrays(path: str | Path, *, salvage: bool = False) -> BagArrays:
 
 
 @dataclass
-class _Messages:
-    """The messages of one bag as read, before they are stamped and stacked.
+class BagMessages:
+    """The messages of one bag as read, before they are stamped and stacked
+    (:func:`bag_arrays`): rosbags or rclpy message objects, fed per topic in log order.
 
     Stamped topics keep (header stamp, value); unstamped arrays (log time, value), and the
     stamped topics they belong to also (log time, stamp) in log order (``*_log``).
@@ -283,8 +290,20 @@ class _Messages:
     forces: list[tuple[int, _Planar]] = field(default_factory=list)
     joints: list[tuple[int, dict[str, float]]] = field(default_factory=list)
 
+    def record(self, topic: str, lt: int, msg: Any) -> None:
+        """Count one message of any topic written to the bag and keep it if it is read
+        (:meth:`add`); for a bag being written, whose counts are not in a summary. A
+        ``/scenario`` that does not parse is counted, not kept (the writer, e.g. a replay,
+        rejects it as the filter node does), where reading it from a bag raises."""
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        try:
+            self.add(topic, lt, msg)
+        except BagError:
+            if topic != SCENARIO:
+                raise
+
     def add(self, topic: str, lt: int, msg: Any) -> None:
-        """Keep one decoded message of ``topic`` logged at ``lt`` (ns)."""
+        """Keep one decoded message of ``topic`` logged at ``lt`` (ns) (other topics: ignored)."""
         if topic == POSE:
             stamp = header_ns(msg)
             self.est.append((stamp, planar_pose(msg.pose.pose), _planar_cov(msg.pose.covariance)))
@@ -328,9 +347,9 @@ class _Messages:
                 raise BagError(problem) from err
 
 
-def _read_messages(path: Path, *, salvage: bool) -> _Messages:
+def _read_messages(path: Path, *, salvage: bool) -> BagMessages:
     """Every message of the topics :func:`load_bag_arrays` reads, in log order."""
-    msgs = _Messages(path=path)
+    msgs = BagMessages(path=path)
     with open_bag(path, salvage=salvage) as reader:
         msgs.counts = reader.counts()
         for raw, msg in reader.decoded(t for t in _READ_TOPICS if msgs.counts.get(t)):
@@ -369,7 +388,7 @@ def _one_row_each(arr: FloatArray) -> FloatArray:
     return arr[:, None, :] if arr.ndim == 2 else arr
 
 
-def _set_estimates(out: BagArrays, msgs: _Messages) -> None:
+def _set_estimates(out: BagArrays, msgs: BagMessages) -> None:
     """Estimated poses and covariances, and the mode and friction arrays at their stamps."""
     if not msgs.est:
         return
@@ -385,7 +404,7 @@ def _set_estimates(out: BagArrays, msgs: _Messages) -> None:
     )
 
 
-def _set_truth(out: BagArrays, msgs: _Messages) -> None:
+def _set_truth(out: BagArrays, msgs: BagMessages) -> None:
     """True poses, and the true modes (argmax) and friction coefficients at their stamps."""
     if not msgs.truth:
         return

@@ -63,6 +63,7 @@ from dbcslam_ros.contract import (
 )
 from dbcslam_ros.errors import BagError, UsageError
 from dbcslam_ros.node.session import FilterSession
+from dbcslam_ros.offline.evaluate import BagMessages, bag_arrays
 
 if TYPE_CHECKING:
     from dbcslam_ros.offline.evaluate import BagArrays
@@ -435,16 +436,22 @@ def _open_output(
 
 def _run(
     reader: Any,
-    writer: BagWriter,
-    copied: Mapping[str, Any],
+    output: tuple[BagWriter, Mapping[str, Any], BagMessages, BagMessages],
     replayer: _Replayer,
     progress: _Progress,
 ) -> float:
-    """Copy every source message and hand the inputs to the replayer; wall time of the loop."""
+    """Copy every source message (output = (writer, copied topics, messages written,
+    messages of the source's own estimates)) and hand the inputs to the replayer; wall time
+    of the loop."""
+    writer, copied, written, recorded = output
     done = 0
     started = time.perf_counter()
-    for raw, obj in reader.decoded(copied):
+    for raw, obj in reader.decoded([*copied, POSE]):
+        if raw.topic not in copied:  # an estimate of the source bag (not copied)
+            recorded.add(raw.topic, raw.log_time_ns, obj)
+            continue
         writer.write(raw.topic, raw.data, raw.log_time_ns, raw.publish_time_ns)
+        written.record(raw.topic, raw.log_time_ns, obj)
         if raw.topic not in INPUT_TOPICS:
             continue
         replayer.take(raw.topic, obj)
@@ -474,17 +481,22 @@ def replay_bag(
     src, dst = Path(bag), Path(out)
     params = _replay_params(opts.params)
     logger = _Logger()
+    written = BagMessages(path=dst)  # what goes into the output bag, for its metrics
+    recorded = BagMessages(path=src)  # the source's own estimates, if any
     with open_bag(src, salvage=opts.salvage) as reader:
         counts = reader.counts()
         n_poses = _check_source(src, counts, params)
         _prepare_out(dst, opts.overwrite)
         writer, copied = _open_output(dst, src, reader.topics())
+
+        def write(topic: str, msg: Any, t: int) -> None:
+            writer.write(topic, rt.encode(msg), t)
+            written.record(topic, t, msg)
+
         try:
-            replayer = _Replayer(
-                params, lambda topic, msg, t: writer.write(topic, rt.encode(msg), t), logger
-            )
+            replayer = _Replayer(params, write, logger)
             progress = _Progress(opts.progress, src.name, n_poses)
-            wall = _run(reader, writer, copied, replayer, progress)
+            wall = _run(reader, (writer, copied, written, recorded), replayer, progress)
         finally:
             writer.close()
     rejected = replayer.rejected()
@@ -496,7 +508,7 @@ def replay_bag(
             f"(rejected inputs: {rejected or 'none'}; {why})"
         )
         raise BagError(msg)
-    arrays, metrics, plots = _products(dst, opts)
+    arrays, metrics, plots = _products(written, opts)
     metrics["replay"] = {
         "source": str(src),
         "poses": n_poses,
@@ -508,18 +520,16 @@ def replay_bag(
         "params": {k: v for k, v in sorted(params.items())},
     }
     if counts.get(POSE, 0):
-        metrics["replay"]["recorded_estimates"] = _compare_recorded(src, arrays, opts.salvage)
+        metrics["replay"]["recorded_estimates"] = _compare_recorded(recorded, arrays)
     (dst / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     return ReplayResult(src, dst, n_poses, replayer.estimates, wall, rejected, metrics, plots)
 
 
-def _compare_recorded(src: Path, after: BagArrays, salvage: bool) -> dict[str, Any]:
+def _compare_recorded(recorded: BagMessages, after: BagArrays) -> dict[str, Any]:
     """How the estimates recorded in the source bag (e.g. a live run) compare with the
     replayed ones (`after`, the arrays of the output bag) at the same stamps (m; differences
     of the planar position)."""
-    from dbcslam_ros.offline.evaluate import load_bag_arrays
-
-    before = load_bag_arrays(src, salvage=salvage)
+    before = bag_arrays(recorded)
     _, i, j = np.intersect1d(before.est_t, after.est_t, return_indices=True)
     diff = np.linalg.norm(before.est_pose[i, :2] - after.est_pose[j, :2], axis=1)
     return {
@@ -532,18 +542,19 @@ def _compare_recorded(src: Path, after: BagArrays, salvage: bool) -> dict[str, A
 
 
 def _products(
-    out: Path, opts: ReplayOptions
+    written: BagMessages, opts: ReplayOptions
 ) -> tuple[BagArrays, dict[str, Any], tuple[Path, ...]]:
-    """The arrays, metrics (truth optional) and plots of a replayed bag."""
-    from dbcslam_ros.offline.evaluate import evaluate_bag, load_bag_arrays
+    """The arrays, metrics (truth optional) and plots of a replayed bag, from the messages
+    written to it (the same arrays as reading the bag back, without reading it: tested)."""
+    from dbcslam_ros.offline.evaluate import evaluate_bag
 
-    arrays = load_bag_arrays(out)
-    metrics = evaluate_bag(out, require_truth=False, arrays=arrays)
+    arrays = bag_arrays(written)
+    metrics = evaluate_bag(written.path, require_truth=False, arrays=arrays)
     plots: tuple[Path, ...] = ()
     if opts.plots:
         from dbcslam_ros.offline.report import save_bag_figures
 
-        plots = tuple(save_bag_figures(arrays, out))
+        plots = tuple(save_bag_figures(arrays, written.path))
     return arrays, metrics, plots
 
 
