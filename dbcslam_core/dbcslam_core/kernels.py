@@ -656,6 +656,7 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     for c in range(n_c - 2, -1, -1):
         stride[c] = stride[c + 1] * (ranks[n_t - 1, c + 1] + 1)
     digit = np.zeros(n_c, dtype=np.int64)
+    part = np.zeros(n_c + 1)  # part[c + 1]: log prior of the digits of contacts 0 .. c
     offset = lo * n_keep
     for p in range(lo, hi):
         n_pre = 0
@@ -663,25 +664,31 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
         # only the tuples of live digits (the others have log prior -inf), in tuple order
         for c in range(n_c):
             digit[c] = 0
+        t_next = 0
+        c_changed = 0  # the partial sums of contacts before it are still valid
         more = True
         while more:
-            t = 0
-            for c in range(n_c):
-                t += digit[c] * stride[c]
-            lp = lsp[p, 0, digit[0]]
-            for c in range(1, n_c):
-                lp += lsp[p, c, digit[c]]
+            t = t_next
+            part[1] = lsp[p, 0, digit[0]]  # (summed left to right, as one sum would be)
+            for c in range(max(c_changed, 1), n_c):
+                part[c + 1] = part[c] + lsp[p, c, digit[c]]
+            lp = part[n_c]
             c = n_c - 1  # next tuple: odometer over digit[c] < n_live[p, c]
             while c >= 0:
                 digit[c] += 1
+                t_next += stride[c]
                 if digit[c] < n_live[p, c]:
                     break
+                t_next -= digit[c] * stride[c]
                 digit[c] = 0
                 c -= 1
             more = c >= 0
+            c_changed = max(c, 0)
             if truncated:
                 n_pre = _insert_desc(pre_v, pre_i, n_pre, pre_k, lp, t)
                 continue
+            if n_top == n_keep and not lp > top_v[n_keep - 1]:
+                continue  # not kept, feasible or not (`_insert_desc`: ties keep the earlier)
             if lp > -np.inf:  # (a tuple with a dead mode stays -inf: no check needed)
                 for c in range(n_c):
                     cand[c] = order[p, c, ranks[t, c]]
