@@ -84,7 +84,22 @@ from dbcslam_core.transition import (
     soft_modes,
 )
 
-__all__ = ["DbcSlamFilter", "Estimate", "FilterConfig", "FilterInput", "warm_up_kernels"]
+__all__ = [
+    "GRIPPER_BANK_PARTICLES",
+    "DbcSlamFilter",
+    "Estimate",
+    "FilterConfig",
+    "FilterInput",
+    "warm_up_kernels",
+]
+
+GRIPPER_BANK_PARTICLES = 200
+"""The gripper preset uses the friction bank below this many particles (`FilterConfig.preset`).
+Final P(true mu) >= 0.9 on `bags/gripper`, filter seeds 0-4: with the bank 5/5 at 40 where
+the single-copy filter has 1/5 (and 1/5 at 120); without it 5/5 at 150, 200, 300, 500 and
+1000, where the bank has 3/5, 5/5, 5/5, 5/5 and 4/5, at 1.5x the CPU per step; on fresh
+pybullet runs (seeds 0-9) 8 / 10 either way at 200 and 10 / 10 at 300 (README, "Friction at
+small particle counts")."""
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -161,8 +176,9 @@ class FilterConfig:
       label (at 40 particles the gripper ended on a wrong coefficient in 4 of 5 seeds).
       Resampling moves whole banks. Requires the time-invariant `reuse` parameter model
       (the copies would need IMM-style mixing for a coefficient that changes between
-      steps). Cost: kinematics, transitions and hypothesis enumeration run on P x B copies;
-      the reduced solves and proposals are as many as without the bank.
+      steps). Cost: every step runs on P x B copies (1.5x the CPU per step on the gripper at
+      equal P). The gripper preset sets it below `GRIPPER_BANK_PARTICLES`: from there the
+      single-copy filter's belief no longer collapses and ends right as often.
     * bank_switch (probability per step, in [0, 1)): with the bank, IMM mixing of a
       particle's copies at the start of every step after friction_hold_steps: the
       coefficient is modelled as switching to each other hypothesis with probability
@@ -346,7 +362,8 @@ class FilterConfig:
         contact and fully out of contact. gripper / push: one time-invariant coefficient ->
         `reuse` (the belief accumulates over the whole grasp). gripper: contact gap residuals
         within gap_tolerance close at gap_closure per step (jaw-estimate jumps vs light
-        contacts; `transition.contact_gap`).
+        contacts; `transition.contact_gap`), and the friction bank below
+        `GRIPPER_BANK_PARTICLES` particles (an explicit ``friction_bank`` override wins).
         """
         base: dict[str, Any]
         if kind == "edge":
@@ -373,10 +390,13 @@ class FilterConfig:
                 # contacts are estimate errors and close slowly (`transition.contact_gap`)
                 base["gap_closure"] = 0.05
                 base["gap_tolerance"] = 1e-3
-                # one state copy per friction candidate (the gripper's belief collapsed at
-                # small particle counts); not for push: on bags/push the bank ended
+                # one state copy per friction candidate below GRIPPER_BANK_PARTICLES (the
+                # gripper's belief collapsed at small particle counts); from there on the
+                # single-copy filter ends right as often and costs 1 / 1.5 (README, "Friction
+                # at small particle counts"); not for push: on bags/push the bank ended
                 # confidently on a wrong pusher coefficient (0.1 / 0.3 at 500 particles)
-                base["friction_bank"] = True
+                particles = int(overrides.get("particles", cls.particles))
+                base["friction_bank"] = particles < GRIPPER_BANK_PARTICLES
             if kind == "push":
                 # constant-speed pusher: a stiff joint smoother (the pusher's position and
                 # velocity enter sticking impulses and the predicted pusher force at 1/dt)

@@ -13,7 +13,13 @@ import pytest
 from dbcslam_core.errors import ModelError
 from dbcslam_core.observation import PoseObservation
 from dbcslam_core.particles import MapHistory, ParticleSet
-from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
+from dbcslam_core.rbpf import (
+    GRIPPER_BANK_PARTICLES,
+    DbcSlamFilter,
+    Estimate,
+    FilterConfig,
+    FilterInput,
+)
 from dbcslam_core.synthetic import Trajectory, gripper_trajectory
 
 
@@ -36,9 +42,14 @@ def _run(
     return out, filt
 
 
-def test_bank_is_the_default_of_the_gripper_preset_only() -> None:
-    assert FilterConfig.preset("gripper").friction_bank
-    assert not FilterConfig.preset("push").friction_bank
+def test_bank_is_the_default_of_the_gripper_preset_only_at_small_particle_counts() -> None:
+    small, large = GRIPPER_BANK_PARTICLES - 1, GRIPPER_BANK_PARTICLES
+    assert FilterConfig.preset("gripper", particles=small).friction_bank
+    assert not FilterConfig.preset("gripper", particles=large).friction_bank
+    assert not FilterConfig.preset("gripper").friction_bank  # 500 particles by default
+    assert FilterConfig.preset("gripper", particles=large, friction_bank=True).friction_bank
+    assert not FilterConfig.preset("gripper", particles=40, friction_bank=False).friction_bank
+    assert not FilterConfig.preset("push", particles=small).friction_bank
     assert not FilterConfig.preset("edge").friction_bank
     with pytest.raises(ModelError, match="friction_bank needs the time-invariant"):
         FilterConfig.preset("edge", friction_bank=True)
@@ -154,7 +165,9 @@ def _bank_filter(particles: int = 4, **changes: object) -> DbcSlamFilter:
     carry distinct poses (row r has x = r)."""
     traj = gripper_trajectory(1, duration=0.3)
     sc = traj.scenario
-    cfg = FilterConfig.preset("gripper", particles=particles, friction_hold_steps=0, **changes)
+    cfg = FilterConfig.preset(
+        "gripper", particles=particles, friction_hold_steps=0, friction_bank=True, **changes
+    )
     filt = DbcSlamFilter(sc, cfg, np.random.default_rng(0))
     filt.initialize(traj.obs[0], [sc.noise.position] * 2 + [sc.noise.yaw], joints=traj.env_obs[0])
     filt._step = 1  # past friction_hold_steps = 0
