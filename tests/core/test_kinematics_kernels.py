@@ -15,8 +15,16 @@ from hypothesis import strategies as st
 from dbcslam_core import geometry, kinematics_kernels, rbpf
 from dbcslam_core.errors import ModelError
 from dbcslam_core.geometry import ContactKinematics
+from dbcslam_core.observation import PoseObservation
+from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig, FilterInput
 from dbcslam_core.scenario import Scenario, edge_scenario, gripper_scenario, push_scenario
-from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS
+from dbcslam_core.synthetic import (
+    PUSH_RECT,
+    PUSH_RECT_MASS,
+    edge_trajectory,
+    gripper_trajectory,
+    push_trajectory,
+)
 
 pytestmark = pytest.mark.skipif(not kinematics_kernels.AVAILABLE, reason="numba not installed")
 
@@ -179,3 +187,50 @@ def test_warm_up_compiles_every_kinds_kernels() -> None:
             kinematics_kernels.contact_coordinates(sc, q, env)
             kinematics_kernels.contact_coordinates(sc, np.asfortranarray(q))
     assert [len(k.signatures) for k in kernels] == before  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("kind", ["edge", "gripper", "push"])
+def test_filter_steps_use_the_compiled_kinematics_bit_for_bit(
+    kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every kinematics call of a filter run (initialisation, free motion of every step,
+    contact coordinates of the moved particles; the gripper with its friction bank's rows)
+    goes through the compiled path and equals the numpy reference bit for bit."""
+    traj = {
+        "edge": lambda: edge_trajectory(0),
+        "gripper": lambda: gripper_trajectory(1, duration=2.0),
+        "push": lambda: push_trajectory(0, side_position=0.8),
+    }[kind]()
+    calls = {"kinematics": 0, "coordinates": 0}
+    compiled_kin = kinematics_kernels.contact_kinematics
+    compiled_coords = kinematics_kernels.contact_coordinates
+
+    def kinematics(sc: Scenario, q: np.ndarray, *args: np.ndarray | None) -> ContactKinematics:
+        out = compiled_kin(sc, q, *args)
+        _assert_same(out, geometry.contact_kinematics(sc, q, *args))
+        calls["kinematics"] += 1
+        return out
+
+    def coordinates(sc: Scenario, q: np.ndarray, env: np.ndarray | None = None) -> np.ndarray:
+        out = compiled_coords(sc, q, env)
+        np.testing.assert_array_equal(out, geometry.contact_coordinates(sc, q, env))
+        calls["coordinates"] += 1
+        return out
+
+    monkeypatch.setattr(kinematics_kernels, "contact_kinematics", kinematics)
+    monkeypatch.setattr(kinematics_kernels, "contact_coordinates", coordinates)
+    filt = DbcSlamFilter(
+        traj.scenario, FilterConfig.preset(kind, particles=30), np.random.default_rng(5)
+    )
+    steps = {"edge": 80, "gripper": 150, "push": 100}[kind]
+    p_separated = 1.0
+    for k in range(1, steps + 1):
+        est = filt.step(
+            PoseObservation(*map(float, traj.obs[k])),
+            FilterInput(tuple(traj.u[k - 1]), tuple(traj.env_obs[k])),
+        )
+        p_separated = min(p_separated, float(np.min(est.modes[:, 0])))
+    # push: the coordinates of a disk contact are those of the full kinematics
+    extra = steps if kind == "push" else 0
+    assert calls == {"kinematics": steps + 1 + extra, "coordinates": steps}
+    assert p_separated < 0.5  # the run reached contacts
