@@ -234,3 +234,26 @@ def test_filter_steps_use_the_compiled_kinematics_bit_for_bit(
     extra = steps if kind == "push" else 0
     assert calls == {"kinematics": steps + 1 + extra, "coordinates": steps}
     assert p_separated < 0.5  # the run reached contacts
+
+
+def test_without_numba_the_numpy_functions_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`AVAILABLE` False (numba missing): the kernels are never called, the values are the
+    numpy reference's."""
+
+    def no_kernel(*_args: object) -> None:
+        raise AssertionError
+
+    monkeypatch.setattr(kinematics_kernels, "AVAILABLE", False)
+    monkeypatch.setattr(kinematics_kernels, "_kinematics_kernel", no_kernel)
+    monkeypatch.setattr(kinematics_kernels, "_coordinates_kernel", no_kernel)
+    for kind in ("edge", "gripper", "push"):
+        sc = _SCENARIOS[kind]
+        q, env, env_vel = _inputs(sc, 11, 20, 0, 1.0)
+        _assert_same(
+            kinematics_kernels.contact_kinematics(sc, q, env, env_vel),
+            geometry.contact_kinematics(sc, q, env, env_vel),
+        )
+        np.testing.assert_array_equal(
+            kinematics_kernels.contact_coordinates(sc, q, env),
+            geometry.contact_coordinates(sc, q, env),
+        )
