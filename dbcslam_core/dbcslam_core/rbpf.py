@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core import contact_modes, kernels, step_kernels
+from dbcslam_core import contact_modes, kernels, kinematics_kernels, step_kernels
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
@@ -810,7 +810,7 @@ class DbcSlamFilter:
         if joints is not None:
             self._joints_prev = self._joint_filter.reset(joints)
         env = self._joints_prev if self._joints_prev is not None else None
-        kin = contact_kinematics(self.scenario, q, env, None)
+        kin = self._kinematics(q, env, None)
         an = np.einsum("pcv,pv->pc", kin.Jn, v) - kin.vn_env
         at = np.einsum("pcv,pv->pc", kin.Jt, v) - kin.vt_env
         soft = soft_modes(kin.phi, an, at, self.dt, self.config.transition)
@@ -953,6 +953,16 @@ class DbcSlamFilter:
         self._step += 1
         return _StepInputs(observation, lin, force, force_obst, u, joints, env0, env_vel)
 
+    def _kinematics(
+        self, q: FloatArray, env: FloatArray | None, env_vel: FloatArray | None
+    ) -> ContactKinematics:
+        """`geometry.contact_kinematics` of the particles q (P, nq) at the joints env (E,)
+        (m) moving at env_vel (E,) (m/s): compiled (`kinematics_kernels`, the same values)
+        with the compiled backend, else the numpy reference."""
+        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+            return kinematics_kernels.contact_kinematics(self.scenario, q, env, env_vel)
+        return contact_kinematics(self.scenario, q, env, env_vel)
+
     def _free_motion(self, inp: _StepInputs) -> _FreeMotion:
         """Contact kinematics at the particles and the velocity without contact impulses
         (with the implicit support friction per friction hypothesis when the body rests on
@@ -960,7 +970,7 @@ class DbcSlamFilter:
         cfg = self.config
         dt = self.dt
         ps = self.particles
-        kin = contact_kinematics(self.scenario, ps.q, inp.env0, inp.env_vel)
+        kin = self._kinematics(ps.q, inp.env0, inp.env_vel)
         m_eff: FloatArray | None = None
         v_free_b: FloatArray | None = None
         if self._mu_surface is None:
@@ -1567,7 +1577,10 @@ class DbcSlamFilter:
         ps = self.particles
         ps.q, ps.v = prop.q_new, prop.v_new
         w, _ = normalise_log_weights(ps.log_w)
-        s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
+        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+            s_new = kinematics_kernels.contact_coordinates(self.scenario, ps.q, joints)
+        else:  # the numpy reference (the same values)
+            s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
         if ps.bank is not None:  # a particle's s: its most probable copy's
             s_new = s_new.reshape(ps.count, self._n_sub, self.n_c)
             s_new = s_new[np.arange(ps.count), np.argmax(ps.bank, axis=1)]
@@ -1883,6 +1896,8 @@ class DbcSlamFilter:
         with contextlib.suppress(Exception):
             probe.step(pose, inputs)
             probe.step(pose, inputs)
+        # the kinematics kernels also when the probe's steps stopped early
+        kinematics_kernels.warm_up(self.scenario)
         _WARM.add(kind)
         return time.perf_counter() - started
 
