@@ -79,7 +79,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 #: Default particle count per scenario kind (parameter ``particles`` = -1): chosen so that on
 #: an idle 2-core machine the filter keeps up with the simulator at 100 Hz (one core each)
 #: with margin; measured with ``python -m dbcslam_research.bench_live --offline`` (README).
-LIVE_PARTICLES: dict[str, int] = {"edge": 1000, "gripper": 80, "push": 200}
+LIVE_PARTICLES: dict[str, int] = {"edge": 1000, "gripper": 200, "push": 200}
 #: Live default for a kind not in LIVE_PARTICLES.
 LIVE_PARTICLES_OTHER = 100
 
