@@ -6,6 +6,7 @@ a vertex of the outline), the filter's input shapes and the shapes that fall bac
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -43,6 +44,18 @@ def _assert_same(a: ContactKinematics, b: ContactKinematics) -> None:
         x, y = getattr(a, name), getattr(b, name)
         assert x.shape == y.shape and x.dtype == y.dtype, name
         np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+def _assert_matches_numpy(sc: Scenario, q: Any, env: Any, env_vel: Any) -> None:
+    """Both compiled functions (or their fallbacks) equal `geometry`'s, bit for bit."""
+    _assert_same(
+        kinematics_kernels.contact_kinematics(sc, q, env, env_vel),
+        geometry.contact_kinematics(sc, q, env, env_vel),
+    )
+    np.testing.assert_array_equal(
+        kinematics_kernels.contact_coordinates(sc, q, env),
+        geometry.contact_coordinates(sc, q, env),
+    )
 
 
 def _pusher_centres(
@@ -156,14 +169,7 @@ def test_other_shapes_fall_back_to_numpy(kind: str) -> None:
         (rng.normal(0, 0.03, (1, sc.nq)), rng.normal(0, 0.03, (5, n_env))),
         (rng.normal(0, 0.03, (4, sc.nq)), rng.normal(0, 0.03, (2, 4, n_env))),
     ):
-        _assert_same(
-            kinematics_kernels.contact_kinematics(sc, q, env, env),
-            geometry.contact_kinematics(sc, q, env, env),
-        )
-        np.testing.assert_array_equal(
-            kinematics_kernels.contact_coordinates(sc, q, env),
-            geometry.contact_coordinates(sc, q, env),
-        )
+        _assert_matches_numpy(sc, q, env, env)
     with pytest.raises(ModelError, match="q must have shape"):
         kinematics_kernels.contact_kinematics(sc, np.zeros((3, sc.nq + 1)))
     with pytest.raises(ModelError, match="env must have shape"):
@@ -249,11 +255,4 @@ def test_without_numba_the_numpy_functions_run(monkeypatch: pytest.MonkeyPatch) 
     for kind in ("edge", "gripper", "push"):
         sc = _SCENARIOS[kind]
         q, env, env_vel = _inputs(sc, 11, 20, 0, 1.0)
-        _assert_same(
-            kinematics_kernels.contact_kinematics(sc, q, env, env_vel),
-            geometry.contact_kinematics(sc, q, env, env_vel),
-        )
-        np.testing.assert_array_equal(
-            kinematics_kernels.contact_coordinates(sc, q, env),
-            geometry.contact_coordinates(sc, q, env),
-        )
+        _assert_matches_numpy(sc, q, env, env_vel)
