@@ -672,7 +672,7 @@ def _enumerate_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
             part[1] = lsp[p, 0, digit[0]]  # (summed left to right, as one sum would be)
             for c in range(max(c_changed, 1), n_c):
                 part[c + 1] = part[c] + lsp[p, c, digit[c]]
-            lp = part[n_c]
+            lp = float(part[n_c])
             c = n_c - 1  # next tuple: odometer over digit[c] < n_live[p, c]
             while c >= 0:
                 digit[c] += 1
