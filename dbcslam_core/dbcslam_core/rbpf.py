@@ -93,6 +93,16 @@ __all__ = [
     "warm_up_kernels",
 ]
 
+_BANK_OPTION_DEFAULTS: dict[str, Any] = {
+    "bank_switch": 0.0,
+    "bank_resampling": "particle",
+    "bank_tempering": 1.0,
+    "bank_step_cap": None,
+    "bank_surprise_gate": None,
+    "bank_surprise_window": 20,
+}
+"""`FilterConfig`'s bank options at their defaults (any other value needs the bank)."""
+
 GRIPPER_BANK_PARTICLES = 200
 """The gripper preset uses the friction bank below this many particles (`FilterConfig.preset`).
 Final P(true mu) >= 0.9 on `bags/gripper`, filter seeds 0-4: with the bank 5/5 at 40 where
@@ -352,6 +362,14 @@ class FilterConfig:
             raise ModelError(msg)
         if not 0.0 <= self.bank_switch < 1.0:
             msg = f"bank_switch must be a probability in [0, 1), got {self.bank_switch}"
+            raise ModelError(msg)
+        changed = [k for k, v in _BANK_OPTION_DEFAULTS.items() if getattr(self, k) != v]
+        if changed and not self.friction_bank:
+            msg = (
+                f"{', '.join(changed)} only act with friction_bank=True, which is off here (the "
+                f"gripper preset turns it on below {GRIPPER_BANK_PARTICLES} particles, this "
+                f"config has {self.particles}); pass friction_bank=True to use them"
+            )
             raise ModelError(msg)
 
     @classmethod

@@ -50,6 +50,20 @@ def test_bank_is_the_default_of_the_gripper_preset_only_at_small_particle_counts
     assert FilterConfig.preset("gripper", particles=large, friction_bank=True).friction_bank
     assert not FilterConfig.preset("gripper", particles=40, friction_bank=False).friction_bank
     assert not FilterConfig.preset("push", particles=small).friction_bank
+
+
+def test_bank_options_without_the_bank_are_refused_not_ignored() -> None:
+    """At 200 particles and more the gripper preset has no bank: a bank option there would
+    silently do nothing, so it is an error that says how to turn the bank on."""
+    with pytest.raises(ModelError, match="bank_switch only act with friction_bank=True"):
+        FilterConfig.preset("gripper", particles=GRIPPER_BANK_PARTICLES, bank_switch=1e-4)
+    with pytest.raises(ModelError, match="bank_resampling, bank_surprise_window only act"):
+        FilterConfig.preset(
+            "edge", bank_resampling="hypothesis", bank_surprise_window=10, particles=40
+        )
+    on = FilterConfig.preset("gripper", particles=500, friction_bank=True, bank_switch=1e-4)
+    assert on.friction_bank and on.bank_switch == 1e-4
+    assert FilterConfig.preset("gripper", particles=40, bank_switch=1e-4).friction_bank
     assert not FilterConfig.preset("edge").friction_bank
     with pytest.raises(ModelError, match="friction_bank needs the time-invariant"):
         FilterConfig.preset("edge", friction_bank=True)
