@@ -18,7 +18,7 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -92,16 +92,6 @@ __all__ = [
     "FilterInput",
     "warm_up_kernels",
 ]
-
-_BANK_OPTION_DEFAULTS: dict[str, Any] = {
-    "bank_switch": 0.0,
-    "bank_resampling": "particle",
-    "bank_tempering": 1.0,
-    "bank_step_cap": None,
-    "bank_surprise_gate": None,
-    "bank_surprise_window": 20,
-}
-"""`FilterConfig`'s bank options at their defaults (any other value needs the bank)."""
 
 GRIPPER_BANK_PARTICLES = 200
 """The gripper preset uses the friction bank below this many particles (`FilterConfig.preset`).
@@ -363,7 +353,11 @@ class FilterConfig:
         if not 0.0 <= self.bank_switch < 1.0:
             msg = f"bank_switch must be a probability in [0, 1), got {self.bank_switch}"
             raise ModelError(msg)
-        changed = [k for k, v in _BANK_OPTION_DEFAULTS.items() if getattr(self, k) != v]
+        changed = [  # the bank options set away from their defaults
+            f.name
+            for f in fields(self)
+            if f.name.startswith("bank_") and getattr(self, f.name) != f.default
+        ]
         if changed and not self.friction_bank:
             msg = (
                 f"{', '.join(changed)} only act with friction_bank=True, which is off here (the "
@@ -485,6 +479,12 @@ class Estimate:
             if not np.all(np.isfinite(probs)):
                 return f"friction map (pair {pair})"
         return None
+
+
+def _compiled_backend() -> bool:
+    """Whether the step runs its compiled kernels: numba available and the compiled backend
+    selected (`contact_modes.DEFAULT_BACKEND`, read at every call: tests switch it)."""
+    return step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled"
 
 
 def _logsumexp(a: FloatArray, axis: int | tuple[int, ...]) -> FloatArray:
@@ -977,7 +977,7 @@ class DbcSlamFilter:
         """`geometry.contact_kinematics` of the particles q (P, nq) at the joints env (E,)
         (m) moving at env_vel (E,) (m/s): compiled (`kinematics_kernels`, the same values)
         with the compiled backend, else the numpy reference."""
-        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+        if _compiled_backend():
             return kinematics_kernels.contact_kinematics(self.scenario, q, env, env_vel)
         return contact_kinematics(self.scenario, q, env, env_vel)
 
@@ -998,7 +998,7 @@ class DbcSlamFilter:
             mu_s = (  # (B,) or per bank copy (P B, 1)
                 self._mu_surface if self._sub_b is None else self._mu_surface[self._sub_b][:, None]
             )
-            if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+            if _compiled_backend():
                 m_eff, v_free_b = step_kernels.support_terms(
                     self.model,
                     ps.q,
@@ -1024,10 +1024,8 @@ class DbcSlamFilter:
         ps = self.particles
         kin = free.kin
         tp = cfg.transition
-        if (
-            step_kernels.AVAILABLE
-            and contact_modes.DEFAULT_BACKEND == "compiled"
-            and not (tp.edge_tolerance > 0.0 and self._edge_partners.size)
+        if _compiled_backend() and not (
+            tp.edge_tolerance > 0.0 and self._edge_partners.size
         ):  # one compiled pass (same operations)
             return step_kernels.predict_modes(
                 ps.modes,
@@ -1141,7 +1139,7 @@ class DbcSlamFilter:
         """Whether phases 4-6 can run compiled (`step_kernels`): numba present, the compiled
         backend selected (`contact_modes.DEFAULT_BACKEND`), and a reading of every pose dim
         (or none)."""
-        if not (step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled"):
+        if not (_compiled_backend()):
             return False
         lin = inp.lin
         return lin is None or (
@@ -1595,7 +1593,7 @@ class DbcSlamFilter:
         ps = self.particles
         ps.q, ps.v = prop.q_new, prop.v_new
         w, _ = normalise_log_weights(ps.log_w)
-        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+        if _compiled_backend():
             s_new = kinematics_kernels.contact_coordinates(self.scenario, ps.q, joints)
         else:  # the numpy reference (the same values)
             s_new = contact_coordinates(self.scenario, ps.q, joints)  # contact coordinate s
@@ -1816,7 +1814,7 @@ class DbcSlamFilter:
         if history.length == 0:
             return self.map.view()
         pending: list[tuple[FloatArray, FloatArray] | None]
-        if step_kernels.AVAILABLE and contact_modes.DEFAULT_BACKEND == "compiled":
+        if _compiled_backend():
             fmap = self.map
             pending = step_kernels.map_pending(
                 history.buf,
