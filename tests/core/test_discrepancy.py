@@ -184,59 +184,55 @@ def test_estimate_at_a_bound_is_never_named() -> None:
     by = {c.effect: c for c in cands}
     assert not by["viscous_damping"].clear and "bound" in by["viscous_damping"].note
     assert by["input_gain"].clear
-    win, amb = verdict(cands, CFG, 3)
+    win, amb = verdict(cands, CFG)
     assert win is not None and win.effect == "input_gain" and amb == ()
 
 
-def _cand(effect: str, delta: float, std: float) -> CandidateFit:
-    """A clear candidate whose held-out seeds scatter by `std` below its evidence."""
+def _cand(effect: str, delta: float, se: float) -> CandidateFit:
+    """A clear candidate with held-out evidence `delta` and its standard error `se`."""
     return CandidateFit(
         effect, {"factor": 1.3}, {"factor": 0.1}, 1, delta, delta, 20.0,
-        0.01, -5.0, 0.01, True, 3.0, 5, heldout_std=std, heldout_lme=delta,
-        heldout_best=delta + 1.0,
+        0.01, -5.0, 0.01, True, 3.0, 5, delta_se=se, heldout_std=se * math.sqrt(3.0),
+        heldout_lme=delta, heldout_best=delta + 1.0,
     )  # fmt: skip
+
+
+def _held(lme: float, se: float) -> HeldScores:
+    return HeldScores(lme, lme, se, (lme,), se)
 
 
 def test_one_sided_monte_carlo_margin() -> None:
     """A model beats another when its evidence exceeds the other's best seed by the margin
     plus z of its own standard errors (a lost-track seed of the other does not help it)."""
-    assert beats(100.0, 3.0, 60.0, margin=10.0, z=3.0, n=3)
-    assert not beats(100.0, 3.0, 95.0, margin=10.0, z=3.0, n=3)
-    assert not beats(100.0, 60.0, 60.0, margin=10.0, z=3.0, n=3)  # its own noise too large
-    hs = HeldScores(0.0, 0.0, 0.0, ())
-    assert hs.lme == 0.0
+    assert beats(_held(100.0, 3.0), 60.0, margin=10.0, z=3.0)
+    assert not beats(_held(100.0, 3.0), 95.0, margin=10.0, z=3.0)
+    assert not beats(_held(100.0, 35.0), 60.0, margin=10.0, z=3.0)  # its own noise too large
 
 
 def test_indistinguishable_pair_is_named_together() -> None:
-    win, amb = verdict(
-        [_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 2990.0, 25.0)], CFG, 3
-    )
+    win, amb = verdict([_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 2990.0, 25.0)], CFG)
     assert win is not None and set(amb) == {"mass_scale", "input_gain"}
     # mass_scale k and input_gain 1 / k are the same motion: both named whenever both clear
-    win, amb = verdict(
-        [_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 1000.0, 25.0)], CFG, 3
-    )
+    win, amb = verdict([_cand("mass_scale", 3000.0, 20.0), _cand("input_gain", 1000.0, 25.0)], CFG)
     assert win is not None and set(amb) == {"mass_scale", "input_gain"}
     # ... and when the other's own fit failed (gripper draw 5: mass_scale fitted at 1.6 lost
     # track held out, input_gain 0.69 won): the data cannot tell them apart either way
     lost = replace(_cand("mass_scale", -2218.0, 0.0), clear=False)
-    win, amb = verdict([lost, _cand("input_gain", 346.0, 25.0)], CFG, 3)
+    win, amb = verdict([lost, _cand("input_gain", 346.0, 25.0)], CFG)
     assert win is not None and win.effect == "input_gain"
     assert set(amb) == {"mass_scale", "input_gain"}
     # only one of them a candidate: named alone
-    win, amb = verdict([_cand("input_gain", 346.0, 25.0)], CFG, 3)
+    win, amb = verdict([_cand("input_gain", 346.0, 25.0)], CFG)
     assert win is not None and amb == ()
     # distinguishable effects: both only when the evidence cannot separate them
     win, amb = verdict(
         [_cand("viscous_damping", 3000.0, 20.0), _cand("support_friction", 2000.0, 25.0)],
         CFG,
-        3,
     )
     assert win is not None and win.effect == "viscous_damping" and amb == ()
     win, amb = verdict(
         [_cand("viscous_damping", 3000.0, 20.0), _cand("support_friction", 2980.0, 25.0)],
         CFG,
-        3,
     )
     assert set(amb) == {"viscous_damping", "support_friction"}
 
