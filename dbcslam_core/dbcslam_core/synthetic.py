@@ -47,6 +47,7 @@ __all__ = [
     "PUSH_RECT",
     "PUSH_RECT_MASS",
     "Trajectory",
+    "delayed",
     "draw_edge_effect",
     "draw_gripper_effect",
     "draw_push_effect",
@@ -161,6 +162,21 @@ def simulate(
     return q, v, act, modes, ln, lt, mus
 
 
+def delayed(q: F64, lag: float) -> F64:
+    """q (T, nq) sampled `lag` samples earlier (fractional: linear interpolation between
+    samples; a yaw column, the third of three, is unwrapped first; before the first sample
+    the first sample)."""
+    t = np.arange(q.shape[0], dtype=np.float64) - lag
+    src = np.array(q, dtype=np.float64)
+    if src.shape[-1] == 3:
+        src[:, 2] = np.unwrap(src[:, 2])
+    t = np.clip(t, 0.0, q.shape[0] - 1.0)
+    i0 = np.minimum(np.floor(t).astype(np.int64), q.shape[0] - 1)
+    i1 = np.minimum(i0 + 1, q.shape[0] - 1)
+    w = (t - i0)[:, None]
+    return np.asarray((1.0 - w) * src[i0] + w * src[i1], dtype=np.float64)
+
+
 def observe(
     scenario: Scenario,
     q: F64,
@@ -170,13 +186,14 @@ def observe(
 ) -> tuple[F64, F64]:
     """Noisy pose and joint observations (std from `scenario.noise`; extension transforms).
 
-    A `sensor_delay` extension makes obs[k] the pose round(delay / dt) samples earlier
-    (clamped at the first sample).
+    A `sensor_delay` extension makes obs[k] the pose `delay` s earlier, linearly
+    interpolated between the samples (yaw unwrapped first; clamped at the first sample): a
+    continuous delay, not a whole number of samples (the filter's model of the effect
+    interpolates too, `discrepancy.effects`).
     """
     delay = sum(e.delay for e in extensions)
-    lag = round(delay / scenario.dt)
-    if lag > 0:
-        q = q[np.maximum(np.arange(q.shape[0]) - lag, 0)]
+    if delay > 0.0:
+        q = delayed(q, delay / scenario.dt)
     pose = compose_observation(extensions, q)
     std = np.full(q.shape[-1], scenario.noise.position)
     if q.shape[-1] == 3:

@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.geometry import contact_kinematics
-from dbcslam_core.synthetic import EDGE_ROUGH, Trajectory, edge_trajectory, gripper_trajectory
+from dbcslam_core.synthetic import (
+    EDGE_ROUGH,
+    Trajectory,
+    delayed,
+    edge_trajectory,
+    gripper_trajectory,
+)
 
 
 @pytest.fixture(scope="module", params=[0, 1])
@@ -80,6 +88,22 @@ def test_determinism_and_seeds() -> None:
     assert not np.allclose(a.obs, c.obs)
     assert not np.allclose(a.u, c.u)  # the force profile varies mildly with the seed
     assert np.median(np.abs(a.u - c.u)) < 0.05 * np.abs(a.u).max()
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(min_value=0.0, max_value=8.0), st.floats(min_value=-3.0, max_value=3.0))
+def test_delay_is_continuous_not_whole_samples(lag: float, rate: float) -> None:
+    """A 38.9 ms delay at 10 ms samples is 3.89 samples, not 4: on a ramp (yaw through
+    +-pi included) the delayed samples are the ramp at t - lag, clamped at the start."""
+    t = np.arange(12, dtype=np.float64)
+    ramp = np.stack([0.01 * rate * t, -0.02 * t, 3.0 + 0.1 * rate * t], axis=1)
+    wrapped = ramp.copy()
+    wrapped[:, 2] = np.angle(np.exp(1j * ramp[:, 2]))
+    got = delayed(wrapped, lag)
+    want = ramp[0] + np.maximum(t - lag, 0.0)[:, None] * (ramp[1] - ramp[0])
+    assert np.allclose(got, want, atol=1e-9)
+    whole = delayed(wrapped[:, :2], float(round(lag)))
+    assert np.array_equal(whole, wrapped[np.maximum(t.astype(int) - round(lag), 0), :2])
 
 
 def test_sensor_delay_extension() -> None:
