@@ -26,7 +26,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dbcslam_core.discrepancy import DiscrepancyConfig, Hypothesis, Run
+from dbcslam_core.discrepancy import DiscrepancyConfig, Hypothesis, Run, resolvability
 from dbcslam_core.discrepancy import analysis as an
 from dbcslam_core.discrepancy.analysis import (
     HeldScores,
@@ -38,8 +38,10 @@ from dbcslam_core.discrepancy.analysis import (
 )
 from dbcslam_core.discrepancy.fitting import FitResult
 from dbcslam_core.discrepancy.report import CandidateFit
+from dbcslam_core.errors import ModelError
+from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.scenario import push_scenario
-from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS
+from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS, gripper_trajectory
 
 CFG = DiscrepancyConfig(particles=150, pictures=False)
 N_OBS = 500
@@ -332,3 +334,22 @@ def test_a_lost_track_seed_does_not_veto_a_clear_candidate() -> None:
     scorer = _SeedScorer({"input_gain": (5760.0, 5600.0, 5600.0)})
     (cand,), _ = compare(prep, [fit], scorer, CFG)  # type: ignore[arg-type]
     assert not cand.clear and cand.delta_se > 50.0
+
+
+# ------------------------------------------------------------ oracle of the benchmark
+@pytest.mark.timeout(300)
+def test_resolvability_of_a_known_effect_on_real_filter_runs() -> None:
+    """The benchmark's oracle: a 60 ms jaw delay on a 2 s gripper run is resolved by the
+    analysis' own naming test applied to the true model; a 2 ms one is not (150 particles,
+    the benchmark's count; 12 filter runs)."""
+    cfg = DiscrepancyConfig(particles=150, pictures=False)
+    got = {}
+    for d in (0.06, 0.002):
+        ext = ModelExtension.make("sensor_delay", seconds=d)
+        tr = gripper_trajectory(11, duration=2.0, mu_jaw=0.4, extensions=(ext,), variation=0.15)
+        run = Run("g", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+        got[d] = resolvability("sensor_delay", {"seconds": d}, [run], cfg)
+    assert got[0.06].resolvable and got[0.06].gain > got[0.06].needed
+    assert not got[0.002].resolvable
+    with pytest.raises(ModelError, match="held-out run"):
+        resolvability("sensor_delay", {"seconds": 0.06}, [], cfg)

@@ -37,6 +37,7 @@ from dbcslam_core.synthetic import (
     draw_push_effect,
     push_sweep_trajectory,
 )
+from dbcslam_research import science
 from dbcslam_research.science import SCENARIOS, gripper_draw, merge, push_draw, recovered
 
 DRAWS = {"gripper": gripper_draw, "push": push_draw}
@@ -151,6 +152,47 @@ def test_merge_keeps_one_row_per_scenario_and_draw(tmp_path: Path) -> None:
         ("push", "| 1 | 1 | 0 | 0 | 100% | 1 | 0 (0%)"),
     ):
         assert f"| {SCENARIOS[name].label} {counts}" in md
+
+
+def test_oracle_marks_resolvable_draws_and_the_table_counts_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--oracle adds, per effect draw, whether the true model passes the naming test (here a
+    stand-in for the filter runs: gain 50 on draw 0, 5 on draw 1); the table then gives the
+    right rate among resolvable draws and the unresolvable draws' `none` count."""
+    from dbcslam_core.discrepancy import Resolvability
+
+    rows = []
+    for i, outcome in ((0, "right"), (1, "none")):
+        _, _, ext = push_draw(i, clean=False, duration=1.0)
+        assert ext is not None
+        hidden = science._fmt(ext.effect, dict(ext.params))
+        row = {"scenario": "push", "index": i, "clean": False, "hidden": hidden}
+        rows.append({**row, "verdict": "x", "fitted": "", "outcome": outcome, "seconds": 1.0})
+    rows.append({**rows[0], "clean": True, "hidden": "none", "outcome": "none"})
+    (tmp_path / "science.json").write_text(json.dumps(rows))
+    gains = {0: 50.0, 1: 5.0}
+    seen: list[int] = []
+
+    def fake(effect: str, params: dict[str, float], runs: Any, cfg: Any) -> Resolvability:
+        seen.append(len(seen))
+        g = gains[len(seen) - 1]
+        return Resolvability(g, 20.0, g > 20.0)
+
+    monkeypatch.setattr(science, "resolvability", fake)
+    science.add_oracle(tmp_path, DiscrepancyConfig(pictures=False), "push", duration=1.0)
+    got = json.loads((tmp_path / "science.json").read_text())
+    assert [r.get("resolvable") for r in got] == [True, False, None]  # clean: no oracle
+    md = (tmp_path / "science.md").read_text()
+    assert "| 1 of 2 | 1 (100%) | 1 of 1 |" in md
+    assert "+5 / 20 (not resolvable)" in md
+    science.add_oracle(tmp_path, DiscrepancyConfig(pictures=False), "push", duration=1.0)
+    assert len(seen) == 2  # draws that have it are not scored again
+    # a table whose hidden effect the generator no longer draws is refused
+    got[0]["hidden"], got[0]["resolvable"] = "sensor_delay seconds=1", None
+    (tmp_path / "science.json").write_text(json.dumps(got))
+    with pytest.raises(SystemExit, match="other generator"):
+        science.add_oracle(tmp_path, DiscrepancyConfig(pictures=False), "push", duration=1.0)
 
 
 # Seeded small versions of the benchmark: one draw per scenario (effect drawn at random from

@@ -7,7 +7,7 @@ filter), `scoring` (the filter's log predictive likelihood as the score), `fitti
 `report` (the result and its contract JSON), `rollouts` (open-loop pictures, not evidence).
 """
 
-from .analysis import DiscrepancyConfig, analyse
+from .analysis import DiscrepancyConfig, Resolvability, analyse, resolvability
 from .effects import FILTER_EFFECTS, Hypothesis, ParamSpace, effect_size, effect_spaces
 from .fitting import FitResult, fit_effect
 from .report import Analysis, CandidateFit
@@ -25,6 +25,7 @@ __all__ = [
     "ModelScore",
     "ParamSpace",
     "Prediction",
+    "Resolvability",
     "RolloutConfig",
     "Run",
     "RunTrace",
@@ -36,6 +37,7 @@ __all__ = [
     "effect_spaces",
     "fit_effect",
     "nominal_friction",
+    "resolvability",
     "smooth_states",
     "split_runs",
 ]

@@ -30,6 +30,14 @@ candidates: the analysis' default effects of the scenario kind) and counts:
 * wrong: another effect named, or the right one with a parameter off;
 * none: nothing named (on clean draws: the right answer).
 
+Oracle (``--oracle``, after the draws; never seen by the analysis): for every effect draw,
+whether the held-out run resolves the hidden effect at all, by the analysis' own naming
+test applied to the TRUE model (`discrepancy.analysis.resolvability`: its held-out evidence
+over the nominal model's best seed against k/2 ln N + min_margin + z standard errors, same
+filter, particles and seeds). The table adds the resolvable draws and the right rate among
+them: on an unresolvable draw `none` is what the analysis must answer (an effect smaller
+than the data resolve), and the plain right rate counts it as a miss.
+
 Writes ``DIR/science.json`` (every draw) and ``DIR/science.md`` (one table row per
 scenario, with the wall time, the summed CPU time of the filter runs and their number per
 analysis; then the draws) after every draw, so an interrupted run leaves its partial table;
@@ -51,7 +59,13 @@ from typing import Any
 
 import numpy as np
 
-from dbcslam_core.discrepancy import Analysis, DiscrepancyConfig, Run, analyse
+from dbcslam_core.discrepancy import (
+    Analysis,
+    DiscrepancyConfig,
+    Run,
+    analyse,
+    resolvability,
+)
 from dbcslam_core.extensions import ModelExtension
 from dbcslam_core.scenario import Scenario
 from dbcslam_core.synthetic import (
@@ -64,7 +78,15 @@ from dbcslam_core.synthetic import (
     push_sweep_trajectory,
 )
 
-__all__ = ["SCENARIOS", "edge_draw", "gripper_draw", "main", "push_draw", "recovered"]
+__all__ = [
+    "SCENARIOS",
+    "add_oracle",
+    "edge_draw",
+    "gripper_draw",
+    "main",
+    "push_draw",
+    "recovered",
+]
 
 PAIR = {"mass_scale", "input_gain"}
 
@@ -202,25 +224,42 @@ def _summary(name: str, rows: list[dict[str, Any]]) -> str:
         return float(np.median(vals)) if vals else float("nan")
 
     label = SCENARIOS[name].label if name in SCENARIOS else name
+    judged = [r for r in eff if r.get("resolvable") is not None]
+    res = [r for r in judged if r["resolvable"]]
+    res_right = sum(r["outcome"] == "right" for r in res)
+    unres_none = sum(r["outcome"] == "none" for r in judged if not r["resolvable"])
+    oracle = (
+        f"{len(res)} of {len(judged)} | {res_right} ({res_right / max(len(res), 1):.0%}) | "
+        f"{unres_none} of {len(judged) - len(res)}"
+        if judged
+        else "| |"
+    )
     return (
         f"| {label} | {len(eff)} | {right} | {wrong} | {none_} | "
         f"{right / max(len(eff), 1):.0%} | {len(cln)} | {clean_none} "
         f"({clean_none / max(len(cln), 1):.0%}) | {med('seconds'):.0f} | "
-        f"{med('cpu_seconds'):.0f} | {med('filter_runs'):.0f} |"
+        f"{med('cpu_seconds'):.0f} | {med('filter_runs'):.0f} | {oracle} |"
     )
 
 
 def _draw_lines(rows: list[dict[str, Any]]) -> list[str]:
     lines = [
-        "| draw | hidden | verdict | fitted | outcome | s | CPU s | filter runs |",
-        "|---|---|---|---|---|---|---|---|",
+        "| draw | hidden | verdict | fitted | outcome | s | CPU s | filter runs |"
+        " oracle: true model's gain / needed (nats) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         cpu = r.get("cpu_seconds")
+        oracle = ""
+        if r.get("resolvable") is not None:
+            oracle = (
+                f"{r['oracle_gain']:+.0f} / {r['oracle_needed']:.0f} "
+                f"({'resolvable' if r['resolvable'] else 'not resolvable'})"
+            )
         lines.append(
             f"| {r['index']}{' (clean)' if r['clean'] else ''} | {r['hidden']} | "
             f"{r['verdict']} | {r['fitted']} | {r['outcome']} | {r['seconds']:.0f} | "
-            f"{'' if cpu is None else f'{cpu:.0f}'} | {r.get('filter_runs', '')} |"
+            f"{'' if cpu is None else f'{cpu:.0f}'} | {r.get('filter_runs', '')} | {oracle} |"
         )
     return lines
 
@@ -230,8 +269,9 @@ def _table(rows: list[dict[str, Any]]) -> str:
     order += sorted({_scenario_of(r) for r in rows} - set(order))
     lines = [
         "| scenario | draws | right | wrong | none | right rate | clean runs | none on clean |"
-        " median s / analysis | median CPU s | median filter runs |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        " median s / analysis | median CPU s | median filter runs | resolvable (oracle) |"
+        " right of resolvable | none of unresolvable |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     lines += [_summary(n, [r for r in rows if _scenario_of(r) == n]) for n in order]
     for n in order:
@@ -335,6 +375,45 @@ def run(
         )
 
 
+def add_oracle(
+    out: Path, cfg: DiscrepancyConfig, scenario: str, duration: float | None = None
+) -> None:
+    """Add the oracle (module docstring) to the effect draws of `scenario` in
+    DIR/science.json that lack it, rewriting the JSON and the table after every draw."""
+    path = out / "science.json"
+    if not path.exists():
+        msg = f"--oracle needs the draws first: no {path}"
+        raise SystemExit(msg)
+    rows: list[dict[str, Any]] = json.loads(path.read_text())
+    bench = SCENARIOS[scenario]
+    dur = bench.duration if duration is None else duration
+    todo = [
+        r
+        for r in rows
+        if _scenario_of(r) == scenario and not r["clean"] and r.get("resolvable") is None
+    ]
+    for n, r in enumerate(todo):
+        _, held, ext = bench.draw(int(r["index"]), clean=False, duration=dur)
+        if ext is None or _fmt(ext.effect, dict(ext.params)) != r["hidden"]:
+            msg = (
+                f"{scenario} draw {r['index']}: the draw now hides {ext}, the table says "
+                f"{r['hidden']!r} (other generator code?); not adding an oracle to it"
+            )
+            raise SystemExit(msg)
+        t0 = time.monotonic()
+        res = resolvability(ext.effect, dict(ext.params), [held], cfg)
+        r["oracle_gain"], r["oracle_needed"] = res.gain, res.needed
+        r["resolvable"] = res.resolvable
+        path.write_text(json.dumps(rows, indent=1) + "\n")
+        (out / "science.md").write_text(_table(rows))
+        _say(
+            f"[{n + 1}/{len(todo)}] {scenario} draw {r['index']} ({r['hidden']}): true model "
+            f"{res.gain:+.1f} nats over the nominal's best seed, needed {res.needed:.1f}: "
+            f"{'resolvable' if res.resolvable else 'not resolvable'}; verdict was "
+            f"{r['outcome']} ({time.monotonic() - t0:.0f} s)"
+        )
+
+
 def merge(out: Path, parts: list[Path]) -> None:
     """Combine the science.json of benchmark parts (one row per scenario and draw) into
     DIR."""
@@ -389,6 +468,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--merge", nargs="+", type=Path, default=None, help="merge the results of these dirs"
     )
+    ap.add_argument(
+        "--oracle",
+        action="store_true",
+        help="add to the effect draws of --scenario in DIR/science.json whether the held-out "
+        "run resolves the hidden effect at all (the true model through the analysis' naming "
+        "test; 6 filter runs per draw)",
+    )
     args = ap.parse_args(argv)
     if args.merge:
         merge(args.out, args.merge)
@@ -403,6 +489,9 @@ def main(argv: list[str] | None = None) -> int:
         workers=args.workers,
         filter_overrides=SCENARIOS[args.scenario].filter_overrides,
     )
+    if args.oracle:
+        add_oracle(args.out, cfg, args.scenario, args.duration)
+        return 0
     run(
         args.out,
         args.draws,
