@@ -272,6 +272,14 @@ def held_scores(
     return HeldScores(log_mean_exp(vals), max(fin), std, vals, lme_standard_error(vals))
 
 
+def nominal_and(
+    hyp: Hypothesis, runs: Sequence[Run], scorer: Scorer, seeds: Sequence[int]
+) -> tuple[HeldScores, HeldScores]:
+    """The held-out scores of the nominal model and of `hyp` over `seeds` (one batch)."""
+    scorer.prefetch((h, runs, s) for h in (NOMINAL, hyp) for s in seeds)
+    return held_scores(NOMINAL, runs, scorer, seeds), held_scores(hyp, runs, scorer, seeds)
+
+
 def beats(a: HeldScores, b_best: float, *, margin: float, z: float) -> bool:
     """Model A's held-out evidence exceeds model B's by more than `margin` plus z standard
     errors of A's own evidence (`HeldScores.se`), against B's best seed (B's lower seeds
@@ -322,9 +330,7 @@ def resolvability(
         filter_overrides=cfg.filter_overrides,
     )
     with Scorer(scfg) as scorer:
-        scorer.prefetch((h, runs, s) for h in (NOMINAL, hyp) for s in seeds)
-        nom = held_scores(NOMINAL, runs, scorer, seeds)
-        true = held_scores(hyp, runs, scorer, seeds)
+        nom, true = nominal_and(hyp, runs, scorer, seeds)
         n_h = max(scorer.score(NOMINAL, runs).n_obs, 2)
     margin = 0.5 * n_free_params(effect, runs[0].scenario) * math.log(n_h) + cfg.min_margin
     big_enough = effect_size(effect, params, runs[0].scenario) >= 1.0
@@ -614,9 +620,7 @@ def confirm(
 
         def retest(c: CandidateFit, why: str) -> bool:
             hyp = Hypothesis.make(c.effect, c.params)
-            big.prefetch((h, prep.held, s) for h in (NOMINAL, hyp) for s in prep.seeds)
-            nom = held_scores(NOMINAL, prep.held, big, prep.seeds)
-            got = held_scores(hyp, prep.held, big, prep.seeds)
+            nom, got = nominal_and(hyp, prep.held, big, prep.seeds)
             margin = 0.5 * c.n_params * math.log(n_h) + cfg.min_margin
             ok = beats(got, nom.best, margin=margin, z=cfg.z)
             line = (
