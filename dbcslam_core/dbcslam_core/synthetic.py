@@ -166,13 +166,13 @@ def delayed(q: F64, lag: float) -> F64:
     """q (T, nq) sampled `lag` samples earlier (fractional: linear interpolation between
     samples; a yaw column, the third of three, is unwrapped first; before the first sample
     the first sample)."""
-    t = np.arange(q.shape[0], dtype=np.float64) - lag
+    last = q.shape[0] - 1
     src = np.array(q, dtype=np.float64)
     if src.shape[-1] == 3:
         src[:, 2] = np.unwrap(src[:, 2])
-    t = np.clip(t, 0.0, q.shape[0] - 1.0)
-    i0 = np.minimum(np.floor(t).astype(np.int64), q.shape[0] - 1)
-    i1 = np.minimum(i0 + 1, q.shape[0] - 1)
+    t = np.clip(np.arange(q.shape[0], dtype=np.float64) - lag, 0.0, float(last))
+    i0 = np.floor(t).astype(np.int64)
+    i1 = np.minimum(i0 + 1, last)
     w = (t - i0)[:, None]
     return np.asarray((1.0 - w) * src[i0] + w * src[i1], dtype=np.float64)
 

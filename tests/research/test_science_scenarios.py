@@ -152,6 +152,9 @@ def test_merge_keeps_one_row_per_scenario_and_draw(tmp_path: Path) -> None:
         ("push", "| 1 | 1 | 0 | 0 | 100% | 1 | 0 (0%)"),
     ):
         assert f"| {SCENARIOS[name].label} {counts}" in md
+    # without an oracle its three cells stay empty: every summary row has the header's cells
+    head, _, *summary = md.split("\n\n")[0].splitlines()
+    assert all(row.count("|") == head.count("|") for row in summary)
 
 
 def test_oracle_marks_resolvable_draws_and_the_table_counts_them(

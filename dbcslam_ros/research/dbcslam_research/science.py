@@ -232,7 +232,7 @@ def _summary(name: str, rows: list[dict[str, Any]]) -> str:
         f"{len(res)} of {len(judged)} | {res_right} ({res_right / max(len(res), 1):.0%}) | "
         f"{unres_none} of {len(judged) - len(res)}"
         if judged
-        else "| |"
+        else " | | "  # the three oracle cells left empty
     )
     return (
         f"| {label} | {len(eff)} | {right} | {wrong} | {none_} | "
