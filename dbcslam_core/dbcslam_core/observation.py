@@ -45,6 +45,7 @@ __all__ = [
     "proposal_terms",
     "sample_gaussian_proposal",
     "sample_noise",
+    "smooth_joint_readings",
     "wrap_angle",
 ]
 
@@ -343,6 +344,69 @@ class JointSmoother:
                 self.p[jump] = self.pm[jump]
                 self.nis[jump] = 0.0
         return np.asarray(self.x[:, 0].copy(), dtype=np.float64)
+
+
+def smooth_joint_readings(
+    readings: npt.ArrayLike, dt: float, noise: float, accel_std: float
+) -> FloatArray:
+    """Two-sided (Rauch-Tung-Striebel) smoothing of a whole recording of joint readings.
+
+    readings (T, J) (m, one column per joint, nan = no reading at that step), sampled every
+    dt (s) with noise std `noise` (m); the same constant-velocity model as `JointSmoother`
+    with white acceleration std `accel_std` (m/s^2). Returns the smoothed positions (T, J)
+    (m). Offline only (it uses the readings after each step): `JointSmoother` filters
+    causally and lags behind starts and stops, which a recorded run need not. noise == 0
+    returns the readings unchanged. Raises ModelError for bad arguments or a joint without
+    any reading.
+    """
+    z = np.array(readings, dtype=np.float64)
+    if z.ndim != 2 or not dt > 0.0 or not noise >= 0.0 or not accel_std > 0.0:
+        msg = (
+            f"smooth_joint_readings needs readings (T, J), dt > 0 s, noise >= 0 m and "
+            f"accel_std > 0 m/s^2; got shape {z.shape}, dt {dt}, noise {noise}, "
+            f"accel_std {accel_std}"
+        )
+        raise ModelError(msg)
+    n, n_j = z.shape
+    if noise == 0.0 or n == 0 or n_j == 0:
+        return z
+    seen = np.isfinite(z)
+    if not np.all(np.any(seen, axis=0)):
+        msg = f"joint columns {np.nonzero(~np.any(seen, axis=0))[0].tolist()} have no reading"
+        raise ModelError(msg)
+    f = np.array([[1.0, dt], [0.0, 1.0]])
+    qn = accel_std**2 * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+    r = noise**2
+    x_f = np.zeros((n, n_j, 2))  # filtered
+    p_f = np.zeros((n, n_j, 2, 2))
+    x_p = np.zeros((n, n_j, 2))  # predicted
+    p_p = np.zeros((n, n_j, 2, 2))
+    first = np.argmax(seen, axis=0)
+    x = np.stack([z[first, np.arange(n_j)], np.zeros(n_j)], -1)
+    p = np.zeros((n_j, 2, 2))
+    p[:, 0, 0], p[:, 1, 1] = r, 1.0  # velocity unknown: std 1 m/s (as `JointSmoother.reset`)
+    for k in range(n):
+        if k:
+            x = x @ f.T
+            p = f @ p @ f.T + qn
+        x_p[k], p_p[k] = x, p
+        ok = seen[k]
+        gain = p[:, :, 0] / (p[:, 0, 0] + r)[:, None]
+        innov = np.where(ok, z[k] - x[:, 0], 0.0)
+        x = x + np.where(ok[:, None], gain * innov[:, None], 0.0)
+        p = p - np.where(ok[:, None, None], gain[:, :, None] * p[:, None, 0, :], 0.0)
+        x_f[k], p_f[k] = x, p
+    x_s = x_f[-1]
+    p_s = p_f[-1]
+    out = np.empty((n, n_j))
+    out[-1] = x_s[:, 0]
+    for k in range(n - 2, -1, -1):
+        # smoother gain C = P_f F^T P_p(k+1)^-1, by a solve (P_p symmetric)
+        c = np.swapaxes(np.linalg.solve(p_p[k + 1], f @ p_f[k]), -1, -2)
+        x_s = x_f[k] + (c @ (x_s - x_p[k + 1])[..., None])[..., 0]
+        p_s = p_f[k] + c @ (p_s - p_p[k + 1]) @ np.swapaxes(c, -1, -2)
+        out[k] = x_s[:, 0]
+    return out
 
 
 def _chol_entries(a: FloatArray) -> list[list[FloatArray]]:
