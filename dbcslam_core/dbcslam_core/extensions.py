@@ -20,7 +20,7 @@ Effect vocabulary (interface contract, `dbcslam discrepancy`), parameters in SI 
 * ``support_pressure``: ``rim_fraction`` in [0, 1] - the support pressure distribution is
   (1 - rim_fraction) x uniform over the outline area + rim_fraction x along the outline
   (replaces ``surface.pressure``; `geometry.support_points`); push-specific
-* ``support_concentration``: ``centre_fraction`` in [0, 0.95] - that fraction of the normal
+* ``support_concentration``: ``centre_fraction`` in [0, 0.99] - that fraction of the normal
   load rests at the centre of mass, the rest is spread as the scenario's pressure
   distribution (a plate that is not perfectly flat bears more of its weight near the middle);
   it shrinks the frictional moment: the limit-surface ratio c = m_max / f_max becomes
@@ -103,8 +103,8 @@ class ModelExtension:
         if self.effect == "support_pressure" and not 0.0 <= p["rim_fraction"] <= 1.0:
             msg = f"effect 'support_pressure': rim_fraction must lie in [0, 1], got {p}"
             raise ModelError(msg)
-        if self.effect == "support_concentration" and not 0.0 <= p["centre_fraction"] <= 0.95:
-            msg = f"effect 'support_concentration': centre_fraction must lie in [0, 0.95], got {p}"
+        if self.effect == "support_concentration" and not 0.0 <= p["centre_fraction"] <= 0.99:
+            msg = f"effect 'support_concentration': centre_fraction must lie in [0, 0.99], got {p}"
             raise ModelError(msg)
         for key in ("b", "seconds", "mu"):
             if key in p and p[key] < 0 and self.effect != "friction_patch":
