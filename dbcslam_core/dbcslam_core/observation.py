@@ -250,6 +250,14 @@ def sample_noise(
     return np.asarray(e_v, dtype=np.float64), np.asarray(e_q, dtype=np.float64)
 
 
+def _constant_velocity(dt: float) -> tuple[FloatArray, FloatArray]:
+    """Constant-velocity model of a joint (position m, velocity m/s) over dt (s): the
+    transition F and the process noise covariance per unit white acceleration variance."""
+    f = np.array([[1.0, dt], [0.0, 1.0]])
+    q_unit = np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+    return f, q_unit
+
+
 class JointSmoother:
     """Constant-velocity Kalman filter per joint for noisy joint readings (m).
 
@@ -291,10 +299,7 @@ class JointSmoother:
         self.pm = np.zeros((n_joints, 2, 2))
         self.nis = np.zeros(n_joints)
         self.initialised = False
-        # constant-velocity model: transition F and the process noise per unit q_a
-        self._f = np.array([[1.0, self.dt], [0.0, 1.0]])
-        dt = self.dt
-        self._q_unit = np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+        self._f, self._q_unit = _constant_velocity(self.dt)
 
     @property
     def velocity(self) -> FloatArray:
@@ -374,8 +379,8 @@ def smooth_joint_readings(
     if not np.all(np.any(seen, axis=0)):
         msg = f"joint columns {np.nonzero(~np.any(seen, axis=0))[0].tolist()} have no reading"
         raise ModelError(msg)
-    f = np.array([[1.0, dt], [0.0, 1.0]])
-    qn = accel_std**2 * np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]])
+    f, q_unit = _constant_velocity(dt)
+    qn = accel_std**2 * q_unit
     r = noise**2
     x_f = np.zeros((n, n_j, 2))  # filtered
     p_f = np.zeros((n, n_j, 2, 2))
@@ -396,15 +401,14 @@ def smooth_joint_readings(
         x = x + np.where(ok[:, None], gain * innov[:, None], 0.0)
         p = p - np.where(ok[:, None, None], gain[:, :, None] * p[:, None, 0, :], 0.0)
         x_f[k], p_f[k] = x, p
+    # backward pass: the means only (the smoothed covariances are not needed)
     x_s = x_f[-1]
-    p_s = p_f[-1]
     out = np.empty((n, n_j))
     out[-1] = x_s[:, 0]
     for k in range(n - 2, -1, -1):
         # smoother gain C = P_f F^T P_p(k+1)^-1, by a solve (P_p symmetric)
         c = np.swapaxes(np.linalg.solve(p_p[k + 1], f @ p_f[k]), -1, -2)
         x_s = x_f[k] + (c @ (x_s - x_p[k + 1])[..., None])[..., 0]
-        p_s = p_f[k] + c @ (p_s - p_p[k + 1]) @ np.swapaxes(c, -1, -2)
         out[k] = x_s[:, 0]
     return out
 
