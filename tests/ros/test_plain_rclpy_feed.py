@@ -1,7 +1,8 @@
 """A plain rclpy node that is not part of the project feeds a recorded run into the filter.
 
 The feeder below imports only rclpy, the message packages and rosbags (to read the bag): it
-publishes the bag's ``/scenario`` (latched) and input topics at the recorded pace and counts
+publishes the bag's ``/scenario`` (latched) and input topics at the recorded pace (held back
+while the filter has not answered the previous pose, so machine load cannot drop poses) and counts
 the ``/dbcslam/pose`` estimates that come back from ``dbcslam_ros.node.filter_node`` running as a
 separate process. Nearly every pose must be answered.
 """
@@ -52,10 +53,19 @@ def main():
     t0_bag, t0 = msgs[0][0], time.monotonic()
     poses = 0
     for t, topic, raw in msgs:
+        t0 += max(0.0, time.monotonic() - (t0 + (t - t0_bag) / 1e9))  # held back: shift
         while time.monotonic() < t0 + (t - t0_bag) / 1e9:
             rclpy.spin_once(node, timeout_sec=0.002)
+        answered = len(got)
         pubs[topic].publish(rclpy.serialization.deserialize_message(raw, TYPES[topic]))
-        poses += topic == "/object/pose"
+        if topic == "/object/pose":
+            poses += 1
+            # the recorded pace, but never ahead of the filter: wait for this pose's answer
+            # (or 2 s, if it was rejected), so a loaded machine slows the run down instead of
+            # making the filter drop poses as backlog
+            answer_by = time.monotonic() + 2.0
+            while time.monotonic() < answer_by and len(got) == answered:
+                rclpy.spin_once(node, timeout_sec=0.002)
     end = time.monotonic() + 5.0
     while time.monotonic() < end and len(got) < poses:
         rclpy.spin_once(node, timeout_sec=0.05)
@@ -84,7 +94,7 @@ def test_plain_rclpy_node_feeds_the_filter(tmp_path: Path, node_process: Any) ->
     words = out.stdout.split()
     poses, estimates = int(words[1]), int(words[3])
     assert poses == 301
-    # nearly every pose answered (a few may be dropped as backlog on a loaded machine)
-    assert estimates >= 0.9 * poses, (out.stdout, filt.log()[-3000:])
+    # nearly every pose answered (a few are rejected by the filter's outlier gate)
+    assert estimates >= 0.95 * poses, (out.stdout, filt.log()[-3000:])
     print(out.stdout)
     assert filt.proc.poll() is None, filt.log()
