@@ -148,6 +148,34 @@ def test_fit_1d_finds_the_peak_or_flags_the_bound(peak: float, curv: float) -> N
             assert res.stderr == pytest.approx(1.0 / math.sqrt(2.0 * curv), rel=1e-6)
 
 
+@pytest.mark.parametrize("unimodal", [True, False])
+def test_fit_1d_walks_the_whole_grid_of_a_space_that_is_not_unimodal(unimodal: bool) -> None:
+    """A dip before the gain (benchmark push draw 25's support_concentration training
+    scores, nominal 7829 nats): the two-misses walk stops in the dip, the whole-grid walk
+    of a space marked not unimodal reaches the peak and refines it."""
+    scores = {0.2: 7773.1, 0.4: 7620.1, 0.6: 7845.7, 0.7: 8042.0, 0.8: 7984.2, 0.9: 8090.1}
+    sp = ParamSpace("centre_fraction", 0.0, 0.99, False, 0.0, tuple(scores), unimodal=unimodal)
+
+    def score(h: Hypothesis) -> float:
+        x = h.param_dict["centre_fraction"]
+        if x in scores:
+            return scores[x]
+        return 8090.1 - 2000.0 * (x - 0.9) ** 2  # the refinement's points beyond the grid
+
+    res = fit_1d(
+        lambda x: Hypothesis.make("support_concentration", {"centre_fraction": x}),
+        sp,
+        score,
+        (0.0, 7829.1),
+        30.0,
+    )
+    if unimodal:
+        assert res.x == 0.0 and not res.refined
+    else:
+        assert res.x == pytest.approx(0.9, abs=0.02) and not res.at_bound
+        assert res.ll >= 8090.1
+
+
 class _FakeScore:
     def __init__(self, ll: float) -> None:
         self.loglik = ll

@@ -65,7 +65,9 @@ FILTER_EFFECTS: frozenset[str] = frozenset(
 @dataclass(frozen=True)
 class ParamSpace:
     """Search space of one effect parameter: [lo, hi] (log scale: factors), the value of
-    the nominal model (`default`) and the coarse grid (excluding the default)."""
+    the nominal model (`default`) and the coarse grid (excluding the default); unimodal:
+    whether the fit's grid walk may stop a side after two points that score no higher
+    (`fitting.fit_1d_steps`), else it evaluates the whole grid."""
 
     name: str
     lo: float
@@ -73,6 +75,7 @@ class ParamSpace:
     log: bool
     default: float
     grid: tuple[float, ...]
+    unimodal: bool = True
 
     def to_u(self, x: float) -> float:
         """Search coordinate (log for factors)."""
@@ -134,8 +137,12 @@ def effect_spaces(  # noqa: PLR0911
         # 8155 / 8109 at 0.95, 8155 / 8110 at 0.97, 8148 / 8113 at 0.99 on the training run,
         # 150 particles - so a cap at 0.95 put the fit of a true effect at the bound, where
         # it is never named)
+        # The whole grid is walked: the score is not unimodal along it. Benchmark push draw
+        # 25 (hidden 0.825; training run, seed 0, 150 particles; nominal 7829 nats) scored
+        # 7773 / 7620 / 7846 / 8042 / 7984 / 8090 at 0.2 / 0.4 / 0.6 / 0.7 / 0.8 / 0.9: the
+        # walk stopped after 0.2 and 0.4 and never reached the gain (oracle: resolvable).
         grid = (0.2, 0.4, 0.6, 0.7, 0.8, 0.9)
-        return (ParamSpace("centre_fraction", 0.0, 0.99, False, 0.0, grid),)
+        return (ParamSpace("centre_fraction", 0.0, 0.99, False, 0.0, grid, unimodal=False),)
     if effect == "sensor_bias":
         # grid steps of the order of the observation noise (1 cm: +-1, 2, 3.5 cm): a bias of
         # many noise stds is far outside what a filter scores, and finer ones fall between

@@ -2,7 +2,8 @@
 
 One parameter (`fit_1d_steps`): the coarse grid of its `ParamSpace` walked outwards from
 the start value, both sides in step (one point per side and round); a side stops after two
-points in a row that do not score above the best so far on that side (the score is taken as
+points in a row that do not score above the best so far on that side (unless the space is
+marked not unimodal, `ParamSpace.unimodal`: then the whole grid; the score is taken as
 unimodal along one parameter at this resolution, up to single points where the filter lost
 track: the score of a mis-specified model is rough, e.g. with a hidden 75 ms sensor delay
 the training score was +3016 nats nominal, -2334 at 20 ms, +3271 at 50 ms, +6142 at 90 ms;
@@ -204,7 +205,7 @@ def fit_1d_steps(
             pts[sp.to_u(x)] = val
             misses[s] = 0 if val > top[s] else misses[s] + 1
             top[s] = max(top[s], val)
-            nxt[s] = nxt[s] + 1 if misses[s] < 2 else len(sides[s])
+            nxt[s] = nxt[s] + 1 if misses[s] < 2 or not sp.unimodal else len(sides[s])
         if first and all(abs(v - base[1]) <= NO_EFFECT for v in vals):
             break  # the parameter does not reach the score on these data (module docstring)
         first = False
