@@ -31,7 +31,7 @@ from dbcslam_core.discrepancy import (
     smooth_states,
     split_runs,
 )
-from dbcslam_core.discrepancy.analysis import HeldScores, beats, compare, verdict
+from dbcslam_core.discrepancy.analysis import HeldScores, _note, beats, compare, verdict
 from dbcslam_core.discrepancy.fitting import (
     FitResult,
     FitSteps,
@@ -336,6 +336,41 @@ def test_fits_driven_in_step_equal_fits_driven_alone() -> None:
     for f, (e, p) in zip(together, peaks.items(), strict=True):
         (x,) = f.params.values()
         assert f.refined and x == pytest.approx(p, rel=0.05), (e, f.params)
+
+
+def test_a_fit_below_the_screen_keeps_the_nominal_and_reports_its_best_point() -> None:
+    """A damping whose gain rises along the grid but stays under the screen (30 nats; the
+    MIT split B's viscous_damping reached +22.5 at 4.45 N s/m) is not refined and keeps
+    b = 0, but the report's note names the best point scored, so a user sees what nearly
+    passed."""
+    nominal = 1000.0
+    scored: list[float] = []
+
+    def score(h: Hypothesis) -> float:
+        b = h.param_dict["b"]
+        scored.append(b)
+        return nominal + 25.0 * b / (b + 0.5)  # rising, below +25 nats everywhere
+
+    run = Run(
+        "r", edge_scenario(), np.zeros(1), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 0))
+    )
+    fit = drive(
+        fit_effect_steps("viscous_damping", [run], nominal, 30.0, refine=False),
+        lambda hs: [score(h) for h in hs],
+    )
+    assert fit.params == {"b": 0.0} and fit.train_delta == 0.0 and not fit.refined
+    top = max(scored)
+    assert fit.best_seen is not None and fit.best_seen[0].param_dict == {"b": top}
+    assert fit.best_seen_delta == pytest.approx(25.0 * top / (top + 0.5))
+    note = _note(fit, 1.0, 30.0)
+    assert note.startswith("no training gain above the screen")
+    assert f"b={top:.4g}, {fit.best_seen_delta:+.1f} nats" in note
+    # nothing scored above the nominal model: the plain note
+    flat = drive(
+        fit_effect_steps("viscous_damping", [run], nominal, 30.0, refine=False),
+        lambda hs: [nominal - 5.0 for _ in hs],
+    )
+    assert _note(flat, 1.0, 30.0) == "no training gain above the screen"
 
 
 def test_split_runs() -> None:

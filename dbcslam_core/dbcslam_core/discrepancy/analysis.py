@@ -389,11 +389,13 @@ def fit_all(
 def _note(f: FitResult, size: float, screen: float) -> str:
     """Why a fit cannot be named before any held-out test ('' when it can be tested)."""
     if not f.refined:
-        return (
-            "no training gain above the screen"
-            if f.train_delta < screen
-            else "not among the best effects on the training runs"
-        )
+        if f.train_delta >= screen:
+            return "not among the best effects on the training runs"
+        note = "no training gain above the screen"
+        if f.best_seen is not None and f.best_seen_delta > 0.0:
+            ps = ", ".join(f"{k}={v:.4g}" for k, v in f.best_seen[0].param_dict.items())
+            note += f" (best point scored: {ps}, {f.best_seen_delta:+.1f} nats)"
+        return note
     if f.at_bound:
         return "estimate at a bound of the search range (not a plausible fit)"
     if size < 1.0:

@@ -81,7 +81,9 @@ class FitResult:
     """Fitted parameters of one effect on the training runs.
 
     evaluations: distinct hypotheses the fit scored (filter runs on the training runs,
-    whether or not a cache already held them)."""
+    whether or not a cache already held them); best_seen: the highest-scoring hypothesis the
+    fit scored and its score (nats; also when it stayed below the screen and the fit kept
+    the nominal parameters), None before any was scored."""
 
     effect: str
     params: dict[str, float]
@@ -92,10 +94,18 @@ class FitResult:
     refined: bool
     evaluations: int
     points: tuple[tuple[float, ...], ...] = field(default=(), repr=False)
+    best_seen: tuple[Hypothesis, float] | None = None
 
     @property
     def hypothesis(self) -> Hypothesis:
         return Hypothesis.make(self.effect, self.params)
+
+    @property
+    def best_seen_delta(self) -> float:
+        """Training gain (nats over the nominal model) of `best_seen` (-inf without one)."""
+        if self.best_seen is None:
+            return -math.inf
+        return self.best_seen[1] - (self.train_loglik - self.train_delta)
 
 
 @dataclass(frozen=True)
@@ -284,6 +294,7 @@ def fit_effect_steps(
     refined = False
     points: list[tuple[float, ...]] = []
     seen: set[Hypothesis] = set()
+    best_seen: tuple[Hypothesis, float] | None = None
     # (space, refine, screen) per coordinate step (module docstring: a pose bias is swept
     # twice, the first sweep on the grid only)
     plan: list[tuple[ParamSpace, bool, float | None]]
@@ -305,6 +316,9 @@ def fit_effect_steps(
             while True:
                 seen.update(batch)
                 vals = yield batch
+                for h, v in zip(batch, vals, strict=True):
+                    if math.isfinite(v) and (best_seen is None or v > best_seen[1]):
+                        best_seen = (h, v)
                 batch = steps.send(vals)
         except StopIteration as stop:
             res: _OneD = stop.value
@@ -327,6 +341,7 @@ def fit_effect_steps(
         refined=refined,
         evaluations=len(seen),
         points=tuple(points),
+        best_seen=best_seen,
     )
 
 
