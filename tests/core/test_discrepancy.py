@@ -364,7 +364,7 @@ def test_a_fit_below_the_screen_keeps_the_nominal_and_reports_its_best_point() -
     assert fit.best_seen_delta == pytest.approx(25.0 * top / (top + 0.5))
     note = _note(fit, 1.0, 30.0)
     assert note.startswith("no training gain above the screen")
-    assert f"b={top:.4g}, {fit.best_seen_delta:+.1f} nats" in note
+    assert f"viscous_damping(b={top:.4g}), {fit.best_seen_delta:+.1f} nats" in note
     # nothing scored above the nominal model: the plain note
     flat = drive(
         fit_effect_steps("viscous_damping", [run], nominal, 30.0, refine=False),

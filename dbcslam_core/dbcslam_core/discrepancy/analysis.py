@@ -393,8 +393,9 @@ def _note(f: FitResult, size: float, screen: float) -> str:
             return "not among the best effects on the training runs"
         note = "no training gain above the screen"
         if f.best_seen is not None and f.best_seen_delta > 0.0:
-            ps = ", ".join(f"{k}={v:.4g}" for k, v in f.best_seen[0].param_dict.items())
-            note += f" (best point scored: {ps}, {f.best_seen_delta:+.1f} nats)"
+            note += (
+                f" (best point scored: {f.best_seen[0].label()}, {f.best_seen_delta:+.1f} nats)"
+            )
         return note
     if f.at_bound:
         return "estimate at a bound of the search range (not a plausible fit)"
