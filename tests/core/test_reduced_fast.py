@@ -89,7 +89,7 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
 def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
     """Two reduced solutions agree on the elements ok (impulse scale lam, N s): velocities
     and response maps to 1e-9 absolute plus 1e-8 of the largest entry of the same element's
-    vector / matrix (nearly singular assignments of the random problems reach |v'| ~ 6e4 m/s
+    vector / matrix plus 1e-11 of its impulse scale (nearly singular assignments of the random problems reach |v'| ~ 6e4 m/s
     and response entries ~ 40, where the two elimination orders differ by ~1e-13 relative
     times the conditioning, in every entry of the element)."""
     assert ok.any()
@@ -97,8 +97,11 @@ def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
         a, b = getattr(new, f)[ok], getattr(ref, f)[ok]
         axes = tuple(range(1, b.ndim))
         scale = np.abs(b).max(axis=axes, keepdims=True) if axes else np.abs(b)
+        # + 1e-11 of the impulse scale: a near-singular system's impulses (hundreds of N s)
+        # carry the conditioning into the response (seed 4796: 2.6e-9 at lam = 528 N s)
+        tol = 1e-9 + 1e-8 * scale + 1e-11 * lam[ok].reshape(-1, *(1,) * len(axes))
         err = np.abs(a - b)
-        assert np.all(err <= 1e-9 + 1e-8 * scale), (f, float(np.max(err - 1e-8 * scale)))
+        assert np.all(err <= tol), (f, float(np.max(err - tol)))
     for f in ("ln", "lt"):
         err = np.abs(getattr(new, f) - getattr(ref, f)).max(-1)
         assert np.all(err[ok] <= 1e-9 * (1.0 + lam[ok]))
@@ -171,6 +174,7 @@ def test_solve_reduced_edge_point_mass_matches_reference(backend: str) -> None:
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10_000), p_contact=st.sampled_from([0.1, 0.3, 0.6]))
 @example(seed=175, p_contact=0.6)  # found by hypothesis: 2.3e-7 on v' = 59 m/s (4e-9 relative)
+@example(seed=4796, p_contact=0.1)  # found by hypothesis: response 2.6e-9 off at lam = 528 N s
 def test_compiled_backend_equals_numpy_backend(seed: int, p_contact: float) -> None:
     """The compiled kernel and the numpy path solve the same equations: equal to round-off
     on every well-posed, well-conditioned assignment, with and without impulse sensitivity."""
