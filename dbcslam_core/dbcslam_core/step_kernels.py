@@ -356,18 +356,16 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                         for i in range(nv):
                             st += jt[p, c, i] * v_next[n, f, i]
                         vtc = st - vte[p, c]
-                    v_sq, imp = kernels._contact_violation(
-                        mc,
-                        gr,
-                        vtc,
-                        ln[n, f, c],
-                        lt[n, f, c],
-                        mu_tab[u, c],
-                        group[c],
-                        (lt_g, cap_g, mag_g),
-                        (v_sq, imp),
-                        (sc_velocity, sc_impulse, sc_floor),
+                    lnc = ln[n, f, c]
+                    ltc = lt[n, f, c]
+                    v_sq, imp, mag = kernels._contact_violation(
+                        mc, gr, vtc, lnc, ltc, (v_sq, imp), (sc_velocity, sc_impulse, sc_floor)
                     )
+                    if mc == _STICK:  # the group sums of a sticking contact
+                        kg = group[c]
+                        lt_g[kg] += ltc
+                        cap_g[kg] += mu_tab[u, c] * lnc
+                        mag_g[kg] += mag - sc_floor
                 imp = kernels._group_violation(
                     imp, n_groups, (lt_g, cap_g, mag_g), sc_impulse, sc_floor
                 )
