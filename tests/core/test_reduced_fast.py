@@ -89,9 +89,9 @@ def _well_posed(modes: np.ndarray, phi: np.ndarray) -> np.ndarray:
 def _assert_agree(new: Any, ref: Any, ok: np.ndarray, lam: np.ndarray) -> None:
     """Two reduced solutions agree on the elements ok (impulse scale lam, N s): velocities
     and response maps to 1e-9 absolute plus 1e-8 of the largest entry of the same element's
-    vector / matrix plus 1e-11 of its impulse scale (nearly singular assignments of the random problems reach |v'| ~ 6e4 m/s
-    and response entries ~ 40, where the two elimination orders differ by ~1e-13 relative
-    times the conditioning, in every entry of the element)."""
+    vector / matrix plus 1e-11 of its impulse scale (nearly singular assignments of the random
+    problems reach |v'| ~ 6e4 m/s and response entries ~ 40, where the two elimination orders
+    differ by ~1e-13 relative times the conditioning, in every entry of the element)."""
     assert ok.any()
     for f in ("v_next", "response", "gap_rate", "vt"):
         a, b = getattr(new, f)[ok], getattr(ref, f)[ok]
