@@ -24,7 +24,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from dbcslam_core import contact_modes, kernels, kinematics_kernels, step_kernels
+from dbcslam_core import (
+    contact_modes,
+    force_kernels,
+    kernels,
+    kinematics_kernels,
+    step_kernels,
+)
 from dbcslam_core.contact_modes import (
     N_MODES,
     ContactLayout,
@@ -1159,13 +1165,13 @@ class DbcSlamFilter:
         out = self._compiled_dynamics(starts, hyp.modes, pred, free, inp=inp, sig2=sig2)
         log_alpha = out["log_alpha"]
         if inp.force is not None and inp.force_obstacle is not None:
-            pi = np.repeat(np.arange(self.particles.size), n_live)
-            log_alpha = log_alpha + self._force_log_likelihood(
+            log_alpha = log_alpha + self._compiled_force_log_likelihood(
+                starts,
                 inp.force,
-                inp.force_obstacle,
-                (out["ln"], out["lt"], out["impulse_response"]),
-                free.kin.normal[pi],
-                sig2,
+                obstacle=inp.force_obstacle,
+                out=out,
+                normal=free.kin.normal,
+                sig2=sig2,
             )
         res = self._compiled_proposal(starts, hyp, out, log_alpha, free=free, inp=inp)
         pair_in = res["pair_in"]
@@ -1734,6 +1740,38 @@ class DbcSlamFilter:
             axes=self.config.force_axes,
         )
 
+    def _compiled_force_log_likelihood(
+        self,
+        starts: IntArray,
+        force: ForceObservation,
+        *,
+        obstacle: int,
+        out: dict[str, Any],
+        normal: FloatArray,
+        sig2: FloatArray,
+    ) -> FloatArray:
+        """`_force_log_likelihood` of the live entries (rows starts, outputs `out` of
+        `_compiled_dynamics`, normals (P, C, 2) per row): compiled (`force_kernels`) for the
+        normal component, the numpy function for `force_axes` "both"."""
+        if self.config.force_axes != "normal" or not force_kernels.AVAILABLE:
+            pi = np.repeat(np.arange(self.particles.size), np.diff(starts))
+            return self._force_log_likelihood(
+                force, obstacle, (out["ln"], out["lt"], out["impulse_response"]), normal[pi], sig2
+            )
+        return force_kernels.normal_force_log_likelihood(
+            starts,
+            (force.fx, force.fy),
+            std=self.config.force_noise if force.std is None else force.std,
+            normal=normal,
+            sel=np.flatnonzero(self._contact_obstacle == obstacle),
+            ln=out["ln"],
+            lt=out["lt"],
+            dt=self.dt,
+            impulse_response=out["impulse_response"],
+            sig2=None if out["impulse_response"] is None else sig2,
+            pool=self._pool,
+        )
+
     def _pair_marginals(self, fric_joint: FloatArray) -> FloatArray:
         """(P, B) joint friction belief -> (P, pairs, Kmax) per-pair marginals (zero-padded)."""
         n_p = fric_joint.shape[0]
@@ -1914,6 +1952,8 @@ class DbcSlamFilter:
             probe.step(pose, inputs)
         # the kinematics kernels also when the probe's steps stopped early
         kinematics_kernels.warm_up(self.scenario)
+        if self.scenario.kind == "push":  # the force likelihood of `/pusher/wrench`
+            force_kernels.warm_up(self.nq)
         _WARM.add(kind)
         return time.perf_counter() - started
 
