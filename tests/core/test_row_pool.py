@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dbcslam_core import kernels, step_kernels
+from dbcslam_core import force_kernels, kernels, step_kernels
 from dbcslam_core.errors import ModelError
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, FilterConfig, FilterInput
@@ -181,7 +181,8 @@ def test_estimates_do_not_depend_on_threads(
     bit at every step."""
     monkeypatch.setattr(step_kernels, "_MIN_ENTRIES", 1)
     monkeypatch.setattr(step_kernels, "_MIN_ROWS", 1)
-    monkeypatch.setattr(kernels, "_MIN_ENUMERATION_ROWS", 1)
+    monkeypatch.setattr(kernels, "_MIN_ENUMERATION_VISITS", 1)
+    monkeypatch.setattr(force_kernels, "_MIN_ENTRIES", 1)
     calls: list[int] = []
     original = RowPool.map
 
