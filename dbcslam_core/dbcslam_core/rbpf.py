@@ -1173,7 +1173,9 @@ class DbcSlamFilter:
                 normal=free.kin.normal,
                 sig2=sig2,
             )
-        res = self._compiled_proposal(starts, hyp, out, log_alpha, free=free, inp=inp)
+        res = self._compiled_proposal(
+            starts, hyp, out, log_alpha, free=free, inp=inp, cov_floor=self._cov_floor(sig2)
+        )
         pair_in = res["pair_in"]
         if self._surface_pair is not None:
             pair_in[:, self._surface_pair] = 1.0  # always on the support
@@ -1264,11 +1266,12 @@ class DbcSlamFilter:
         *,
         free: _FreeMotion,
         inp: _StepInputs,
+        cov_floor: FloatArray | None,
     ) -> dict[str, FloatArray]:
         """Phases 5-6 compiled (`step_kernels.propose_rows`), with the random numbers of the
         numpy path in its order: Gumbel uniforms over the padded (K, F) layout (a bank's
         copies share their particle's: `_shared_draws` without the repeat), then the normals
-        of v' and of the position noise."""
+        of v' and of the position noise. cov_floor: see `_cov_floor`."""
         ps = self.particles
         n_r = ps.size
         uniforms = self.rng.random((n_r // self._n_sub, hyp.width * self.n_fb))
@@ -1294,8 +1297,15 @@ class DbcSlamFilter:
             z_v=z_v,
             z_q=z_q,
             pair_mask=self._pair_mask,
+            cov_floor=cov_floor,
             pool=self._pool,
         )
+
+    def _cov_floor(self, sig2: FloatArray) -> FloatArray | None:
+        """The diagonal every velocity covariance of `_compiled_dynamics` lies above (its
+        constrained-noise term c sig2, (nv,)), None when it is not positive definite."""
+        floor = self.config.constrained_noise * np.asarray(sig2, dtype=np.float64)
+        return floor if bool(np.all(floor > 0.0)) else None
 
     def _propose(self, ent: _Entries, dyn: _Dynamics, inp: _StepInputs) -> _Proposal:
         """Optimal proposal: per entry x friction the Gaussian posterior of v' given the

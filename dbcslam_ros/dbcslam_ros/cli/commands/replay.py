@@ -22,7 +22,8 @@ bag's /scenario (or --scenario-file) and the filter parameters (--params, --part
 Writes OUTDIR (for a directory of bags: OUTDIR/<bag name>/ per bag): a bag with the
 source's topics (inputs, /scenario, truth; earlier /dbcslam/* and /diagnostics are
 dropped) and the filter's outputs /dbcslam/pose (first), /dbcslam/odometry,
-/dbcslam/contact_modes, /dbcslam/friction, /dbcslam/friction_map, /dbcslam/markers and
+/dbcslam/contact_modes, /dbcslam/friction, /dbcslam/friction_map, /dbcslam/markers
+(every 0.1 s of bag time as live; `marker_period: 0.0` in --params: one per estimate) and
 /diagnostics (once per second of bag time), every output logged at the stamp of the
 observation it answers; metrics.json (`dbcslam evaluate` output plus replay timing;
 counts only when the bag has no truth) and PNG plots. A progress line goes to stderr.
