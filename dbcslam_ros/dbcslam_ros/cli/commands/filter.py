@@ -31,7 +31,7 @@ steps, so the lag stays bounded.
 
 Parameters (ROS params file `dbcslam_filter: {ros__parameters: {...}}` or
 --ros-args -p NAME:=VALUE): particles (-1 = live default per scenario kind: edge 1000,
-gripper 200, push 200), ess_threshold, prune_threshold, parameter_model
+gripper 500, push 500), ess_threshold, prune_threshold, parameter_model
 (reuse|mixture|geometric), contact_weight, gating_threshold, seed, scenario_file,
 model_file (a model extension from `dbcslam discrepancy`), frame_id, marker_particles,
 marker_period, diagnostics_period, catch_up_steps, use_pusher_wrench, force_noise, max_gap,
