@@ -371,12 +371,17 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                 )
                 score[n, f] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
                 # -- velocity noise covariance R diag(sig2) R^T + c diag(sig2) ---------------
-                for i in range(nv):
-                    for j in range(nv):
-                        s = 0.0
-                        for k in range(nv):
-                            s += resp[n, f, i, k] * sig2[k] * resp[n, f, j, k]
-                        cov[n, f, i, j] = s + (c_noise * sig2[i] if i == j else 0.0)
+                if f > 0 and shared and not slides:  # R is f = 0's: so is the covariance
+                    for i in range(nv):
+                        for j in range(nv):
+                            cov[n, f, i, j] = cov[n, 0, i, j]
+                else:
+                    for i in range(nv):
+                        for j in range(nv):
+                            s = 0.0
+                            for k in range(nv):
+                                s += resp[n, f, i, k] * sig2[k] * resp[n, f, j, k]
+                            cov[n, f, i, j] = s + (c_noise * sig2[i] if i == j else 0.0)
                 # -- log prior (sum over contacts) and l = log prior - score / 2 -------------
                 lp = 0.0
                 for c in range(n_c):
@@ -391,7 +396,9 @@ def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
                 m = 0.0
             tot = 0.0
             for n in range(starts[p], starts[p + 1]):
-                tot += math.exp(log_alpha[n, f] - m)
+                d = log_alpha[n, f] - m
+                if d > -746.0:  # (exp underflows to exactly 0 below: nothing to add)
+                    tot += math.exp(d)
             lse = (math.log(tot) if tot > 0.0 else -np.inf) + m
             lf = math.log(fric[p, f]) if fric[p, f] > 0.0 else -np.inf
             for n in range(starts[p], starts[p + 1]):
