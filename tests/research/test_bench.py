@@ -65,3 +65,39 @@ def test_markdown_contains_reading() -> None:
     }
     md = render_markdown(result, "python -m dbcslam_research.bench")
     assert "**Reading the table.**" in md and "5.0x faster" in md
+
+
+@pytest.mark.parametrize(("walls", "verdict"), [([3.9, 4.2, 3.8], "yes"), ([4.3, 4.1, 4.6], "no")])
+def test_replay_table_says_whether_the_replay_kept_within_the_data(
+    walls: list[float], verdict: str
+) -> None:
+    result: dict[str, Any] = {
+        "scaling": [_row("gripper", 100, 2.0, 10.0, 0.3)],
+        "accuracy": [],
+        "replay": {
+            "bag": "bags/gripper",
+            "particles": 1000,
+            "data_s": 4.0,
+            "wall_s": walls,
+            "wall_median_s": sorted(walls)[1],
+            "wall_min_s": min(walls),
+            "estimates": 400,
+            "final_p_true": {"jaws": 1.0},
+        },
+        "meta": {
+            "date_utc": "x",
+            "machine": "m",
+            "numpy": "2",
+            "cpus": 2,
+            "loadavg_1min_before_after": [0.0, 0.0],
+            "warmup": 5,
+            "repeat": 1,
+            "steps": 40,
+        },
+    }
+    md = render_markdown(result, "python -m dbcslam_research.bench")
+    row = next(line for line in md.splitlines() if line.startswith("| `bags/gripper`"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == "4.00"
+    assert cells[4] == verdict
+    assert cells[6] == "jaws 1.000"

@@ -15,6 +15,10 @@ What is measured (all on the synthetic paper data of :mod:`dbcslam_core.syntheti
    Per-step position RMSE on the slice is reported side by side.
 2. Accuracy on the full trajectories at ``--accuracy-particles`` (default 500): DBC-SLAM vs
    the black-box PGS filter (full metrics of :func:`dbcslam_core.experiments.score`).
+3. Offline replay, start-up included: the wall time of ``dbcslam replay BAG --particles N
+   --no-plots`` as a fresh process (``--replay``, default ``bags/gripper`` at
+   ``--replay-particles`` 1000, ``--replay-runs`` 3 runs, the median and the smallest
+   reported) next to the time the bag's data last.
 
 Timing: ``time.perf_counter`` around each ``step`` call, the first ``--warmup`` steps
 discarded, the median of the rest reported (ms/step). DBC-SLAM runs with its default threads
@@ -31,10 +35,14 @@ and prints the Markdown table.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
+import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -55,7 +63,7 @@ from dbcslam_core.row_pool import resolve_threads
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
 
-__all__ = ["contact_window", "main", "reading_lines", "slice_trajectory"]
+__all__ = ["contact_window", "main", "reading_lines", "slice_trajectory", "time_replay"]
 
 DEFAULT_OUT = Path("dbcslam_ros/research/results")
 
@@ -208,6 +216,79 @@ def _accuracy_rows(
     return rows
 
 
+def time_replay(
+    bag: Path, particles: int, runs: int, say: Callable[[str], None]
+) -> dict[str, Any]:
+    """Wall time of `dbcslam replay BAG --particles N --no-plots` as a fresh process (imports,
+    kernel loading, bag reading and writing included), `runs` times; with the time the bag's
+    poses span (s, their stamps) and the replay's final P(true mu) per friction pair.
+
+    Raises:
+        RuntimeError: a bag with fewer than two poses, or a replay that exited with an
+            error (its stderr in the message).
+    """
+    from dbcslam_ros.bag.reader import open_bag
+
+    with open_bag(bag) as reader:  # the time the poses span (their header stamps)
+        stamps = [
+            int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+            for _, m in reader.decoded(["/object/pose"])
+        ]
+    if len(stamps) < 2:
+        msg = f"{bag}: fewer than two /object/pose messages, nothing to time"
+        raise RuntimeError(msg)
+    data_s = (max(stamps) - min(stamps)) / 1e9
+    walls: list[float] = []
+    metrics: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="dbcslam-bench-replay-") as tmp:
+        out = Path(tmp) / "out"
+        cmd = [
+            sys.executable, "-m", "dbcslam_ros.cli", "replay", str(bag), "-o", str(out),
+            "--particles", str(particles), "--no-plots", "--quiet", "--overwrite",
+        ]  # fmt: skip
+        for k in range(runs):
+            t0 = time.perf_counter()
+            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            walls.append(time.perf_counter() - t0)
+            if done.returncode != 0:
+                msg = f"{' '.join(cmd)} exited with {done.returncode}: {done.stderr[-2000:]}"
+                raise RuntimeError(msg)
+            say(f"replay {bag} at {particles} particles, run {k + 1}: {walls[-1]:.2f} s wall")
+        metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
+    p_true = {
+        str(f["pair"]): f.get("p_true")
+        for f in metrics.get("friction") or []
+        if isinstance(f, dict) and "pair" in f
+    }
+    return {
+        "bag": str(bag),
+        "particles": particles,
+        "data_s": data_s,
+        "wall_s": walls,
+        "wall_median_s": statistics.median(walls),
+        "wall_min_s": min(walls),
+        "estimates": metrics.get("estimates"),
+        "final_p_true": p_true,
+    }
+
+
+def _replay_lines(rep: dict[str, Any]) -> list[str]:
+    """The replay-timing table of `render_markdown`."""
+    verdict = "yes" if rep["wall_median_s"] <= rep["data_s"] else "no"
+    p_true = ", ".join(f"{k} {_fmt(v, 3)}" for k, v in rep["final_p_true"].items()) or "-"
+    return [
+        "",
+        "## Offline replay, start-up included",
+        "",
+        "| bag | particles | data [s] | wall median / min [s] (runs) | within the data's time "
+        "| estimates | final P(true mu) |",
+        "|---|---|---|---|---|---|---|",
+        f"| `{rep['bag']}` | {rep['particles']} | {_fmt(rep['data_s'])} | "
+        f"{_fmt(rep['wall_median_s'])} / {_fmt(rep['wall_min_s'])} ({len(rep['wall_s'])}) | "
+        f"{verdict} | {rep['estimates']} | {p_true} |",
+    ]
+
+
 def render_markdown(result: dict[str, Any], command: str) -> str:
     """The two benchmark tables as Markdown."""
     meta = result["meta"]
@@ -266,6 +347,8 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
                 f"{_fmt(r.get('final_true_friction_posterior', math.nan), 3)} | "
                 f"{_fmt(r['step_time_ms'])} |"
             )
+    if result.get("replay"):
+        lines += _replay_lines(result["replay"])
     lines.append("")
     return "\n".join(lines)
 
@@ -366,12 +449,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=1,
         help="repetitions of each timed run; the smallest median is reported (1)",
     )
+    p.add_argument(
+        "--replay",
+        type=Path,
+        default=Path("bags/gripper"),
+        help="bag of the replay timing (bags/gripper)",
+    )
+    p.add_argument(
+        "--replay-particles", type=int, default=1000, help="particles of the replay (1000)"
+    )
+    p.add_argument(
+        "--replay-runs", type=int, default=3, help="replay processes timed (0 = skip; 3)"
+    )
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
     scenarios = [s for s in args.scenarios.split(",") if s]
     if not scenarios or any(s not in SCENARIOS for s in scenarios):
         p.print_usage(sys.stderr)
         print(f"error: --scenarios must be a subset of {list(SCENARIOS)}", file=sys.stderr)
+        return 2
+    if args.replay_runs > 0 and not args.replay.exists():
+        p.print_usage(sys.stderr)
+        print(f"error: --replay {args.replay}: no such bag (or --replay-runs 0)", file=sys.stderr)
+        return 2
+    if args.replay_runs < 0 or args.replay_particles < 1:
+        p.print_usage(sys.stderr)
+        print("error: need --replay-runs >= 0 and --replay-particles >= 1", file=sys.stderr)
         return 2
     if args.steps < args.warmup + 3 or args.warmup < 0 or args.repeat < 1:
         p.print_usage(sys.stderr)
@@ -395,6 +498,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         say=say,
         repeat=args.repeat,
     )
+    if args.replay_runs > 0:
+        result["replay"] = time_replay(args.replay, args.replay_particles, args.replay_runs, say)
     result["meta"] = {
         "command": command,
         "date_utc": utc_now(),
