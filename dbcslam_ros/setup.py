@@ -35,7 +35,7 @@ setup(
     python_requires=">=3.11",
     entry_points={
         "console_scripts": [
-            "dbcslam = dbcslam_ros.cli:main",
+            "dbcslam = dbcslam_ros.cli:console_main",
             "filter_node = dbcslam_ros.node.filter_node:main",
             "talker = dbcslam_ros.node.demo_nodes:talker_main",
             "listener = dbcslam_ros.node.demo_nodes:listener_main",

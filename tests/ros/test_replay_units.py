@@ -206,3 +206,39 @@ def test_unusable_scenario_gives_no_estimates_error(tmp_path: Path, edge_bag: Pa
             dst.write(raw.topic, data, raw.log_time_ns)
     with pytest.raises(BagError, match="no estimates"):
         replay_bag(broken, tmp_path / "o", ReplayOptions(params={"particles": 10}, plots=False))
+
+
+def test_console_replay_exits_fast_with_everything_written(edge_bag: Path, tmp_path: Path) -> None:
+    """The console script ends a replay without the interpreter's teardown (`fast_exit`):
+    the exit code, the printed summary, the closed bag and metrics.json are all there; a
+    failing replay still exits 2 with its message."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "dbcslam_ros.cli", "replay", str(edge_bag), "-o", str(out)]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # buffered stdout
+    done = subprocess.run(
+        [*cmd, "--particles", "20", "--no-plots", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env=env,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "estimates" in done.stdout and "position RMSE" in done.stdout  # flushed
+    metrics = json.loads((out / "metrics.json").read_text())
+    with open_bag(out) as bag:
+        assert bag.counts()["/dbcslam/pose"] == metrics["estimates"] > 0
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
+    assert again.returncode == 2
+    assert "already exists" in again.stderr
+
+
+def test_only_batch_commands_exit_fast() -> None:
+    from dbcslam_ros.cli.registry import discover_commands
+
+    fast = {name for name, command in discover_commands().items() if command.fast_exit}
+    assert fast == {"replay"}

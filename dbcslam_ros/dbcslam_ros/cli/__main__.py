@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
+from dbcslam_ros.cli import console_main
 
-from dbcslam_ros.cli import main
-
-sys.exit(main())
+console_main()

@@ -58,6 +58,10 @@ class Command:
         run: executes the parsed command; returns the exit code (0 success, 2 bad usage or
             input, 1 internal failure). May raise :class:`dbcslam_ros.errors.DbcSlamRosError`
             for bad input, which the CLI turns into exit code 2 and a one-line message.
+        fast_exit: the console script may end the process without tearing the interpreter
+            down once ``run`` returned (`dbcslam_ros.cli.console_main`): only for batch
+            commands that close everything they write before returning and start no
+            processes or DDS participants that outlive ``run``.
     """
 
     name: str
@@ -66,6 +70,7 @@ class Command:
     examples: str
     configure: Callable[[argparse.ArgumentParser], None]
     run: Callable[[argparse.Namespace], int]
+    fast_exit: bool = False
 
 
 def _add(found: dict[str, Command], command: object, where: str) -> None:

@@ -120,4 +120,5 @@ COMMAND = Command(
     examples=_EXAMPLES,
     configure=_configure,
     run=_run,
+    fast_exit=True,  # the output bag is closed and metrics.json written when _run returns
 )
