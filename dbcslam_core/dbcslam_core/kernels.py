@@ -130,8 +130,8 @@ def _contact_violation(  # noqa: PLR0917 - numba helper (inlined): positional sc
     of the original sums: the velocity a mode forbids (separating gap rate, slip against a
     sliding direction) over scales[0], a negative normal impulse over scales[1] (magnitude
     floor scales[2]). Returns (v_sq, imp, mag) with mag = |ln| + |lt| + floor; the caller
-    adds a sticking contact's friction, cap and mag - floor to its obstacle group
-    (`_add_to_group`). Shared by `_kernel` and `step_kernels._entry_kernel`.
+    adds a sticking contact's friction, cap and mag - floor to its obstacle group's sums.
+    Shared by `_kernel` and the entry kernels of `step_kernels`.
 
     Scalars only: the same helper writing the group sums into arrays it was handed made the
     fused entry kernel 1.8-2.7x slower (the compiler then kept no entry value in registers).
@@ -204,7 +204,7 @@ def _kernel(  # noqa: PLR0917 - numba entry point: positional arrays, no keyword
     """Fill the outputs of every lead element; returns the number of singular systems.
     The steps are marked and mirror the numpy path of `solve_reduced`."""
     # Long because: one fused loop with the scratch arrays allocated once keeps each
-    # element's temporaries in registers; its sibling `step_kernels._entry_kernel` (the same
+    # element's temporaries in registers; its sibling, the entry kernel of `step_kernels` (the same
     # steps per live entry) split into inlined helpers measured 1.5x slower.
     n_g, n_c = md.shape
     nv = vf.shape[1]

@@ -116,294 +116,303 @@ def _entry_gap(  # noqa: PLR0917 - numba helper
     return phi
 
 
-def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
-    starts: IntArray,
-    md: IntArray,
-    jn: FloatArray,
-    jt: FloatArray,
-    phi_row: FloatArray,
-    vne: FloatArray,
-    vte: FloatArray,
-    vf: FloatArray,
-    minv: FloatArray,
-    mass: FloatArray,
-    has_mass: bool,
-    mu_tab: FloatArray,
-    row_b: IntArray,
-    group: IntArray,
-    n_groups: int,
-    params: FloatArray,
-    prev_in: FloatArray,
-    has_prev: bool,
-    sensitivity: bool,
-    log_pred: FloatArray,
-    fric: FloatArray,
-    sig2: FloatArray,
-    v_next: FloatArray,
-    ln: FloatArray,
-    lt: FloatArray,
-    score: FloatArray,
-    resp: FloatArray,
-    irs: FloatArray,
-    cov: FloatArray,
-    log_alpha: FloatArray,
-    n_max: int,
-    lo: int,
-    hi: int,
-) -> int:
-    """Fill the per-(entry, friction) outputs of rows lo .. hi - 1; returns the number of
-    singular systems.
+def _entry_kernel_for(nv_const: int) -> Callable[..., int]:
+    """The entry kernel for velocity dimension nv_const (0: any, read from the arrays). A
+    constant nv lets the compiler unroll every loop over the velocity dims: the gripper's
+    heaviest step (14,764 live entries) 10.3 -> 7.4 ms on one thread, the same values bit
+    for bit. One cached machine code per constant (numba keys its cache on the closure)."""
 
-    params = (dt, eps_rel, impulse scale, velocity scale, impulse floor, gap closure, gap
-    tolerance (< 0: None), constrained noise). vf (R, Fv, nv) with Fv in (1, F): with Fv = F
-    or a mass per (row, f) the geometry differs per f (no sharing of friction-free solves).
-    n_max: the most active contacts of any entry (of all rows: the regularisation of
-    `kernels._kernel` depends on it). The steps within an element are those of
-    `kernels._kernel`.
-    """
-    # Long because: one fused loop over the entries keeps the per-entry temporaries in
-    # registers; the same steps split into inlined helpers (row set-up, modes and gaps,
-    # assembly, solve, score, noise and prior, normalisation) measured 1.5x slower (4.1 ->
-    # 6.1 ms per gripper step at 1000 particles, CPU time, min of 40). The steps are marked.
-    dt, eps_rel, sc_impulse, sc_velocity, sc_floor = (
-        params[0],
-        params[1],
-        params[2],
-        params[3],
-        params[4],
-    )
-    closure, tolerance, c_noise = params[5], params[6], params[7]
-    n_c = md.shape[1]
-    nv = jn.shape[2]
-    n_f = log_alpha.shape[1]
-    two_c = 2 * n_c
-    shared = (not has_mass) and vf.shape[1] == 1
-    mw = np.empty((mass.shape[1] if has_mass else 1, two_c, nv))
-    lu = np.empty((nv, nv))
-    rhs_m = np.empty((nv, two_c))
-    rows = np.empty(two_c, dtype=np.int64)
-    grow = np.empty((two_c, nv))
-    frow = np.empty((two_c, nv))
-    amat = np.empty((two_c, two_c))
-    x = np.empty((two_c, 1 + nv))
-    cpl = np.zeros(n_c)
-    lt_g = np.zeros(max(n_groups, 1))
-    cap_g = np.zeros(max(n_groups, 1))
-    mag_g = np.zeros(max(n_groups, 1))
-    an = np.empty(n_c)
-    at = np.empty(n_c)
-    phd = np.empty(n_c)
-    phd_row = np.empty(n_c)
-    n_fv = vf.shape[1]
-    n_fm = mw.shape[0]
-    base_n = np.empty((n_fv, n_c))  # Jn v_free - vn_env per contact (the row's)
-    base_t = np.empty((n_fv, n_c))
-    dg = np.empty((n_fm, n_c))  # Delassus diagonal (normal + tangent) per contact
-    n_bad = 0
-    for p in range(lo, hi):
-        if starts[p + 1] == starts[p]:
-            continue
-        n_bad += _row_mw(p, jn, jt, minv, mass, has_mass, mw, lu, rhs_m)
-        for fv in range(n_fv):
-            for c in range(n_c):
-                sn = 0.0
-                st = 0.0
-                for i in range(nv):
-                    sn += jn[p, c, i] * vf[p, fv, i]
-                    st += jt[p, c, i] * vf[p, fv, i]
-                base_n[fv, c] = sn - vne[p, c]
-                base_t[fv, c] = st - vte[p, c]
-        for c in range(n_c):
-            phd_row[c] = phi_row[p, c] / dt
-        for fm in range(n_fm):
-            for c in range(n_c):
-                d = 0.0
-                for i in range(nv):
-                    d += jn[p, c, i] * mw[fm, c, i] + jt[p, c, i] * mw[fm, n_c + c, i]
-                dg[fm, c] = d
-        for n in range(starts[p], starts[p + 1]):
-            n_act = 0
-            n_stick = 0
-            slides = False
-            for c in range(n_c):
-                mc = md[n, c]
-                if mc != _SEP:
-                    n_act += 1
-                if mc == _STICK:
-                    n_stick += 1
-                if mc >= _POS:
-                    slides = True
-                if mc == _SEP:  # (the gap of a separated contact is not changed)
-                    phd[c] = phd_row[c]
-                else:
-                    prev = prev_in[p, c] if has_prev else 1.0
-                    phd[c] = (
-                        _entry_gap(phi_row[p, c], True, closure, tolerance, has_prev, prev) / dt
-                    )
-            u_row = row_b[p]
-            for f in range(n_f):
-                fv = f if vf.shape[1] > 1 else 0
-                fm = f if has_mass else 0
-                u = u_row if u_row >= 0 else f
-                if f > 0 and shared and not slides:
-                    for c in range(n_c):
-                        ln[n, f, c] = ln[n, 0, c]
-                        lt[n, f, c] = lt[n, 0, c]
+    def _entry_kernel(  # noqa: PLR0917 - numba entry point, mirrors kernels._kernel
+        starts: IntArray,
+        md: IntArray,
+        jn: FloatArray,
+        jt: FloatArray,
+        phi_row: FloatArray,
+        vne: FloatArray,
+        vte: FloatArray,
+        vf: FloatArray,
+        minv: FloatArray,
+        mass: FloatArray,
+        has_mass: bool,
+        mu_tab: FloatArray,
+        row_b: IntArray,
+        group: IntArray,
+        n_groups: int,
+        params: FloatArray,
+        prev_in: FloatArray,
+        has_prev: bool,
+        sensitivity: bool,
+        log_pred: FloatArray,
+        fric: FloatArray,
+        sig2: FloatArray,
+        v_next: FloatArray,
+        ln: FloatArray,
+        lt: FloatArray,
+        score: FloatArray,
+        resp: FloatArray,
+        irs: FloatArray,
+        cov: FloatArray,
+        log_alpha: FloatArray,
+        n_max: int,
+        lo: int,
+        hi: int,
+    ) -> int:
+        """Fill the per-(entry, friction) outputs of rows lo .. hi - 1; returns the number of
+        singular systems.
+
+        params = (dt, eps_rel, impulse scale, velocity scale, impulse floor, gap closure, gap
+        tolerance (< 0: None), constrained noise). vf (R, Fv, nv) with Fv in (1, F): with Fv = F
+        or a mass per (row, f) the geometry differs per f (no sharing of friction-free solves).
+        n_max: the most active contacts of any entry (of all rows: the regularisation of
+        `kernels._kernel` depends on it). The steps within an element are those of
+        `kernels._kernel`.
+        """
+        # Long because: one fused loop over the entries keeps the per-entry temporaries in
+        # registers; the same steps split into inlined helpers (row set-up, modes and gaps,
+        # assembly, solve, score, noise and prior, normalisation) measured 1.5x slower (4.1 ->
+        # 6.1 ms per gripper step at 1000 particles, CPU time, min of 40). The steps are marked.
+        dt, eps_rel, sc_impulse, sc_velocity, sc_floor = (
+            params[0],
+            params[1],
+            params[2],
+            params[3],
+            params[4],
+        )
+        closure, tolerance, c_noise = params[5], params[6], params[7]
+        n_c = md.shape[1]
+        nv = nv_const if nv_const > 0 else jn.shape[2]
+        n_f = log_alpha.shape[1]
+        two_c = 2 * n_c
+        shared = (not has_mass) and vf.shape[1] == 1
+        mw = np.empty((mass.shape[1] if has_mass else 1, two_c, nv))
+        lu = np.empty((nv, nv))
+        rhs_m = np.empty((nv, two_c))
+        rows = np.empty(two_c, dtype=np.int64)
+        grow = np.empty((two_c, nv))
+        frow = np.empty((two_c, nv))
+        amat = np.empty((two_c, two_c))
+        x = np.empty((two_c, 1 + nv))
+        cpl = np.zeros(n_c)
+        lt_g = np.zeros(max(n_groups, 1))
+        cap_g = np.zeros(max(n_groups, 1))
+        mag_g = np.zeros(max(n_groups, 1))
+        an = np.empty(n_c)
+        at = np.empty(n_c)
+        phd = np.empty(n_c)
+        phd_row = np.empty(n_c)
+        n_fv = vf.shape[1]
+        n_fm = mw.shape[0]
+        base_n = np.empty((n_fv, n_c))  # Jn v_free - vn_env per contact (the row's)
+        base_t = np.empty((n_fv, n_c))
+        dg = np.empty((n_fm, n_c))  # Delassus diagonal (normal + tangent) per contact
+        n_bad = 0
+        for p in range(lo, hi):
+            if starts[p + 1] == starts[p]:
+                continue
+            n_bad += _row_mw(p, jn, jt, minv, mass, has_mass, mw, lu, rhs_m)
+            for fv in range(n_fv):
+                for c in range(n_c):
+                    sn = 0.0
+                    st = 0.0
                     for i in range(nv):
-                        v_next[n, f, i] = v_next[n, 0, i]
-                        for j in range(nv):
-                            resp[n, f, i, j] = resp[n, 0, i, j]
-                    if sensitivity:
-                        for k in range(2):
-                            for c in range(n_c):
-                                for i in range(nv):
-                                    irs[n, f, k, c, i] = irs[n, 0, k, c, i]
-                else:
-                    for c in range(n_c):
-                        an[c] = base_n[fv, c] + phd[c]
-                        at[c] = base_t[fv, c]
+                        sn += jn[p, c, i] * vf[p, fv, i]
+                        st += jt[p, c, i] * vf[p, fv, i]
+                    base_n[fv, c] = sn - vne[p, c]
+                    base_t[fv, c] = st - vte[p, c]
+            for c in range(n_c):
+                phd_row[c] = phi_row[p, c] / dt
+            for fm in range(n_fm):
+                for c in range(n_c):
+                    d = 0.0
                     for i in range(nv):
-                        v_next[n, f, i] = vf[p, fv, i]
-                        for j in range(nv):
-                            resp[n, f, i, j] = 1.0 if i == j else 0.0
-                    for c in range(n_c):
-                        ln[n, f, c] = 0.0
-                        lt[n, f, c] = 0.0
-                        cpl[c] = 0.0
-                        if md[n, c] == _POS:
-                            cpl[c] = mu_tab[u, c]
-                        elif md[n, c] == _NEG:
-                            cpl[c] = -mu_tab[u, c]
-                    if sensitivity:
-                        for k in range(2):
-                            for c in range(n_c):
-                                for i in range(nv):
-                                    irs[n, f, k, c, i] = 0.0
-                    if n_act > 0:
-                        extra = n_max - n_act
-                        dsum = 0.0
-                        for c in range(n_c):
-                            take = md[n, c] != _SEP
-                            if not take and extra > 0:
-                                take = True
-                                extra -= 1
-                            if take:
-                                dsum += dg[fm, c]
-                        eps = eps_rel * max(dsum / (2 * n_max), 1e-300)
-                        r = 0
-                        for c in range(n_c):
-                            if md[n, c] != _SEP:
-                                rows[r] = c
-                                for i in range(nv):
-                                    grow[r, i] = jn[p, c, i]
-                                    frow[r, i] = mw[fm, c, i] - cpl[c] * mw[fm, n_c + c, i]
-                                x[r, 0] = -an[c]
-                                r += 1
-                        for c in range(n_c):
-                            if md[n, c] == _STICK:
-                                rows[r] = n_c + c
-                                for i in range(nv):
-                                    grow[r, i] = jt[p, c, i]
-                                    frow[r, i] = mw[fm, n_c + c, i]
-                                x[r, 0] = -at[c]
-                                r += 1
-                        if not kernels._solve_rows(grow, frow, x, amat, r, nv, eps):
-                            n_bad += 1
-                        for j in range(r):
-                            for i in range(nv):
-                                v_next[n, f, i] += frow[j, i] * x[j, 0]
-                                for k in range(nv):
-                                    resp[n, f, i, k] += frow[j, i] * x[j, 1 + k]
-                        for j in range(r):
-                            slot = rows[j]
-                            if slot < n_c:
-                                ln[n, f, slot] = x[j, 0]
-                            else:
-                                lt[n, f, slot - n_c] = x[j, 0]
-                        for c in range(n_c):
-                            lt[n, f, c] -= cpl[c] * ln[n, f, c]
-                        if sensitivity:
-                            for j in range(r):
-                                slot = rows[j]
-                                k = 0 if slot < n_c else 1
-                                for i in range(nv):
-                                    irs[n, f, k, slot % n_c, i] = x[j, 1 + i]
-                            for c in range(n_c):
-                                for i in range(nv):
-                                    irs[n, f, 1, c, i] -= cpl[c] * irs[n, f, 0, c, i]
-                # -- violation score of (n, f) (as kernels._kernel) --------------------------
-                v_sq = 0.0
-                imp = 0.0
-                for k in range(n_groups):
-                    lt_g[k] = 0.0
-                    cap_g[k] = 0.0
-                    mag_g[k] = 0.0
-                fv = f if vf.shape[1] > 1 else 0
+                        d += jn[p, c, i] * mw[fm, c, i] + jt[p, c, i] * mw[fm, n_c + c, i]
+                    dg[fm, c] = d
+            for n in range(starts[p], starts[p + 1]):
+                n_act = 0
+                n_stick = 0
+                slides = False
                 for c in range(n_c):
                     mc = md[n, c]
-                    # the gap rate of a separated contact and the slip of a sliding one
-                    gr = 0.0
-                    vtc = 0.0
-                    if n_act == 0:  # v' = v_free: the row's free rates
-                        gr = base_n[fv, c] + phd[c]
-                    elif mc == _SEP:
-                        sn = 0.0
+                    if mc != _SEP:
+                        n_act += 1
+                    if mc == _STICK:
+                        n_stick += 1
+                    if mc >= _POS:
+                        slides = True
+                    if mc == _SEP:  # (the gap of a separated contact is not changed)
+                        phd[c] = phd_row[c]
+                    else:
+                        prev = prev_in[p, c] if has_prev else 1.0
+                        phd[c] = (
+                            _entry_gap(phi_row[p, c], True, closure, tolerance, has_prev, prev)
+                            / dt
+                        )
+                u_row = row_b[p]
+                for f in range(n_f):
+                    fv = f if vf.shape[1] > 1 else 0
+                    fm = f if has_mass else 0
+                    u = u_row if u_row >= 0 else f
+                    if f > 0 and shared and not slides:
+                        for c in range(n_c):
+                            ln[n, f, c] = ln[n, 0, c]
+                            lt[n, f, c] = lt[n, 0, c]
                         for i in range(nv):
-                            sn += jn[p, c, i] * v_next[n, f, i]
-                        gr = (sn - vne[p, c]) + phd[c]
-                    elif mc >= _POS:
-                        st = 0.0
+                            v_next[n, f, i] = v_next[n, 0, i]
+                            for j in range(nv):
+                                resp[n, f, i, j] = resp[n, 0, i, j]
+                        if sensitivity:
+                            for k in range(2):
+                                for c in range(n_c):
+                                    for i in range(nv):
+                                        irs[n, f, k, c, i] = irs[n, 0, k, c, i]
+                    else:
+                        for c in range(n_c):
+                            an[c] = base_n[fv, c] + phd[c]
+                            at[c] = base_t[fv, c]
                         for i in range(nv):
-                            st += jt[p, c, i] * v_next[n, f, i]
-                        vtc = st - vte[p, c]
-                    lnc = ln[n, f, c]
-                    ltc = lt[n, f, c]
-                    v_sq, imp, mag = kernels._contact_violation(
-                        mc, gr, vtc, lnc, ltc, (v_sq, imp), (sc_velocity, sc_impulse, sc_floor)
+                            v_next[n, f, i] = vf[p, fv, i]
+                            for j in range(nv):
+                                resp[n, f, i, j] = 1.0 if i == j else 0.0
+                        for c in range(n_c):
+                            ln[n, f, c] = 0.0
+                            lt[n, f, c] = 0.0
+                            cpl[c] = 0.0
+                            if md[n, c] == _POS:
+                                cpl[c] = mu_tab[u, c]
+                            elif md[n, c] == _NEG:
+                                cpl[c] = -mu_tab[u, c]
+                        if sensitivity:
+                            for k in range(2):
+                                for c in range(n_c):
+                                    for i in range(nv):
+                                        irs[n, f, k, c, i] = 0.0
+                        if n_act > 0:
+                            extra = n_max - n_act
+                            dsum = 0.0
+                            for c in range(n_c):
+                                take = md[n, c] != _SEP
+                                if not take and extra > 0:
+                                    take = True
+                                    extra -= 1
+                                if take:
+                                    dsum += dg[fm, c]
+                            eps = eps_rel * max(dsum / (2 * n_max), 1e-300)
+                            r = 0
+                            for c in range(n_c):
+                                if md[n, c] != _SEP:
+                                    rows[r] = c
+                                    for i in range(nv):
+                                        grow[r, i] = jn[p, c, i]
+                                        frow[r, i] = mw[fm, c, i] - cpl[c] * mw[fm, n_c + c, i]
+                                    x[r, 0] = -an[c]
+                                    r += 1
+                            for c in range(n_c):
+                                if md[n, c] == _STICK:
+                                    rows[r] = n_c + c
+                                    for i in range(nv):
+                                        grow[r, i] = jt[p, c, i]
+                                        frow[r, i] = mw[fm, n_c + c, i]
+                                    x[r, 0] = -at[c]
+                                    r += 1
+                            if not kernels._solve_rows(grow, frow, x, amat, r, nv, eps):
+                                n_bad += 1
+                            for j in range(r):
+                                for i in range(nv):
+                                    v_next[n, f, i] += frow[j, i] * x[j, 0]
+                                    for k in range(nv):
+                                        resp[n, f, i, k] += frow[j, i] * x[j, 1 + k]
+                            for j in range(r):
+                                slot = rows[j]
+                                if slot < n_c:
+                                    ln[n, f, slot] = x[j, 0]
+                                else:
+                                    lt[n, f, slot - n_c] = x[j, 0]
+                            for c in range(n_c):
+                                lt[n, f, c] -= cpl[c] * ln[n, f, c]
+                            if sensitivity:
+                                for j in range(r):
+                                    slot = rows[j]
+                                    k = 0 if slot < n_c else 1
+                                    for i in range(nv):
+                                        irs[n, f, k, slot % n_c, i] = x[j, 1 + i]
+                                for c in range(n_c):
+                                    for i in range(nv):
+                                        irs[n, f, 1, c, i] -= cpl[c] * irs[n, f, 0, c, i]
+                    # -- violation score of (n, f) (as kernels._kernel) --------------------------
+                    v_sq = 0.0
+                    imp = 0.0
+                    for k in range(n_groups):
+                        lt_g[k] = 0.0
+                        cap_g[k] = 0.0
+                        mag_g[k] = 0.0
+                    fv = f if vf.shape[1] > 1 else 0
+                    for c in range(n_c):
+                        mc = md[n, c]
+                        # the gap rate of a separated contact and the slip of a sliding one
+                        gr = 0.0
+                        vtc = 0.0
+                        if n_act == 0:  # v' = v_free: the row's free rates
+                            gr = base_n[fv, c] + phd[c]
+                        elif mc == _SEP:
+                            sn = 0.0
+                            for i in range(nv):
+                                sn += jn[p, c, i] * v_next[n, f, i]
+                            gr = (sn - vne[p, c]) + phd[c]
+                        elif mc >= _POS:
+                            st = 0.0
+                            for i in range(nv):
+                                st += jt[p, c, i] * v_next[n, f, i]
+                            vtc = st - vte[p, c]
+                        lnc = ln[n, f, c]
+                        ltc = lt[n, f, c]
+                        v_sq, imp, mag = kernels._contact_violation(
+                            mc, gr, vtc, lnc, ltc, (v_sq, imp), (sc_velocity, sc_impulse, sc_floor)
+                        )
+                        if mc == _STICK:  # the group sums of a sticking contact
+                            kg = group[c]
+                            lt_g[kg] += ltc
+                            cap_g[kg] += mu_tab[u, c] * lnc
+                            mag_g[kg] += mag - sc_floor
+                    imp = kernels._group_violation(
+                        imp, n_groups, (lt_g, cap_g, mag_g), sc_impulse, sc_floor
                     )
-                    if mc == _STICK:  # the group sums of a sticking contact
-                        kg = group[c]
-                        lt_g[kg] += ltc
-                        cap_g[kg] += mu_tab[u, c] * lnc
-                        mag_g[kg] += mag - sc_floor
-                imp = kernels._group_violation(
-                    imp, n_groups, (lt_g, cap_g, mag_g), sc_impulse, sc_floor
-                )
-                score[n, f] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
-                # -- velocity noise covariance R diag(sig2) R^T + c diag(sig2) ---------------
-                if f > 0 and shared and not slides:  # R is f = 0's: so is the covariance
-                    for i in range(nv):
-                        for j in range(nv):
-                            cov[n, f, i, j] = cov[n, 0, i, j]
-                else:
-                    for i in range(nv):
-                        for j in range(nv):
-                            s = 0.0
-                            for k in range(nv):
-                                s += resp[n, f, i, k] * sig2[k] * resp[n, f, j, k]
-                            cov[n, f, i, j] = s + (c_noise * sig2[i] if i == j else 0.0)
-                # -- log prior (sum over contacts) and l = log prior - score / 2 -------------
-                lp = 0.0
-                for c in range(n_c):
-                    lp += log_pred[p, f, c, md[n, c]]
-                log_alpha[n, f] = lp - 0.5 * score[n, f]
-        # -- normalise l over the row's entries per f, times the friction belief -------------
-        for f in range(n_f):
-            m = -np.inf
-            for n in range(starts[p], starts[p + 1]):
-                m = max(m, log_alpha[n, f])
-            if not np.isfinite(m):
-                m = 0.0
-            tot = 0.0
-            for n in range(starts[p], starts[p + 1]):
-                d = log_alpha[n, f] - m
-                if d > -746.0:  # (exp underflows to exactly 0 below: nothing to add)
-                    tot += math.exp(d)
-            lse = (math.log(tot) if tot > 0.0 else -np.inf) + m
-            lf = math.log(fric[p, f]) if fric[p, f] > 0.0 else -np.inf
-            for n in range(starts[p], starts[p + 1]):
-                log_alpha[n, f] = lf + (log_alpha[n, f] - lse)
-    return n_bad
+                    score[n, f] = v_sq + (imp if n_act + n_stick <= nv else 0.0)
+                    # -- velocity noise covariance R diag(sig2) R^T + c diag(sig2) ---------------
+                    if f > 0 and shared and not slides:  # R is f = 0's: so is the covariance
+                        for i in range(nv):
+                            for j in range(nv):
+                                cov[n, f, i, j] = cov[n, 0, i, j]
+                    else:
+                        for i in range(nv):
+                            for j in range(nv):
+                                s = 0.0
+                                for k in range(nv):
+                                    s += resp[n, f, i, k] * sig2[k] * resp[n, f, j, k]
+                                cov[n, f, i, j] = s + (c_noise * sig2[i] if i == j else 0.0)
+                    # -- log prior (sum over contacts) and l = log prior - score / 2 -------------
+                    lp = 0.0
+                    for c in range(n_c):
+                        lp += log_pred[p, f, c, md[n, c]]
+                    log_alpha[n, f] = lp - 0.5 * score[n, f]
+            # -- normalise l over the row's entries per f, times the friction belief -------------
+            for f in range(n_f):
+                m = -np.inf
+                for n in range(starts[p], starts[p + 1]):
+                    m = max(m, log_alpha[n, f])
+                if not np.isfinite(m):
+                    m = 0.0
+                tot = 0.0
+                for n in range(starts[p], starts[p + 1]):
+                    d = log_alpha[n, f] - m
+                    if d > -746.0:  # (exp underflows to exactly 0 below: nothing to add)
+                        tot += math.exp(d)
+                lse = (math.log(tot) if tot > 0.0 else -np.inf) + m
+                lf = math.log(fric[p, f]) if fric[p, f] > 0.0 else -np.inf
+                for n in range(starts[p], starts[p + 1]):
+                    log_alpha[n, f] = lf + (log_alpha[n, f] - lse)
+        return n_bad
+
+    return _entry_kernel
 
 
 def _wrap(a: float) -> float:
@@ -1117,6 +1126,11 @@ def _support_kernel(  # noqa: PLR0917 - numba entry point: positional arrays
     return n_bad
 
 
+_SPECIALISED_NV = (0, 2, 3)
+"""Velocity dimensions with their own compiled entry kernel (0: the generic one): the point
+mass (2) and the planar rigid body (3)."""
+_ENTRY_KERNELS: dict[int, Callable[..., int]]
+
 if AVAILABLE:
     import numba
 
@@ -1130,7 +1144,10 @@ if AVAILABLE:
 
     _row_mw = numba.njit(cache=True, nogil=True, error_model="numpy")(_row_mw)
     _entry_gap = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_gap)
-    _entry_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_kernel)
+    _ENTRY_KERNELS = {
+        nv: numba.njit(cache=True, nogil=True, error_model="numpy")(_entry_kernel_for(nv))
+        for nv in _SPECIALISED_NV
+    }
     _wrap = numba.njit(cache=True, nogil=True, error_model="numpy")(_wrap)
     _chol_lower = numba.njit(cache=True, nogil=True, error_model="numpy")(_chol_lower)
     _log_diag = numba.njit(cache=True, nogil=True, error_model="numpy")(_log_diag)
@@ -1148,6 +1165,8 @@ if AVAILABLE:
     _row_log_posterior = _inline(_row_log_posterior)
     _row_marginals = _inline(_row_marginals)
     _propose_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(_propose_kernel)
+else:  # pragma: no cover - numba missing: the numpy phases run instead
+    _ENTRY_KERNELS = {nv: _entry_kernel_for(nv) for nv in _SPECIALISED_NV}
 
 
 _MIN_ENTRIES = 256
@@ -1287,7 +1306,8 @@ def entry_dynamics(
         n_max,
     )
     bounds = _chunks(pool, n_r, starts, _MIN_ENTRIES)
-    n_bad = sum(_run_rows(pool, _entry_kernel, args, bounds))
+    kernel = _ENTRY_KERNELS.get(nv, _ENTRY_KERNELS[0])
+    n_bad = sum(_run_rows(pool, kernel, args, bounds))
     if not sensitivity:
         out["impulse_response"] = None
     return out, int(n_bad)
