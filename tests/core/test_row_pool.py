@@ -207,18 +207,19 @@ def test_estimates_do_not_depend_on_threads(
 
 @pytest.mark.skipif(not step_kernels.AVAILABLE, reason="numba not installed")
 @pytest.mark.parametrize("kind", ["edge", "gripper", "push"])
-def test_generic_entry_kernel_equals_the_specialised_one(
+def test_generic_kernels_equal_the_specialised_ones(
     trajectories: dict[str, Trajectory], monkeypatch: pytest.MonkeyPatch, kind: str
 ) -> None:
-    """The entry kernel compiled for the scenario's velocity dimension (2: edge, 3: gripper,
-    push) and the generic one (dimension read from the arrays) give the same filter, bit
-    for bit: the constant only lets the compiler unroll."""
+    """The entry and proposal kernels compiled for the scenario's velocity dimension (2:
+    edge, 3: gripper, push) and the generic ones (dimension read from the arrays) give the
+    same filter, bit for bit: the constant only lets the compiler unroll."""
     traj = trajectories[kind]
     cfg = FilterConfig.preset(kind, particles=23, threads=1)
     special = _run(traj, cfg, 60, kind == "push")
-    generic = dict(step_kernels._ENTRY_KERNELS)
-    for nv in (2, 3):
-        generic[nv] = generic[0]
-    monkeypatch.setattr(step_kernels, "_ENTRY_KERNELS", generic)
+    for table in ("_ENTRY_KERNELS", "_PROPOSE_KERNELS"):
+        generic = dict(getattr(step_kernels, table))
+        for nv in (2, 3):
+            generic[nv] = generic[0]
+        monkeypatch.setattr(step_kernels, table, generic)
     for k, (a, b) in enumerate(zip(special, _run(traj, cfg, 60, kind == "push"), strict=True)):
         np.testing.assert_array_equal(a, b, err_msg=f"step {k + 1}")
