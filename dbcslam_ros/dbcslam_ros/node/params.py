@@ -78,8 +78,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 
 #: Default particle count per scenario kind (parameter ``particles`` = -1): chosen so that on
 #: an idle 2-core machine the filter keeps up with the simulator at 100 Hz (latency p95 under
-#: 10 ms, < 1 % of the poses dropped; gripper 500: p95 7.9-8.7 ms at load 0.1-0.3, no margin
-#: left at load ~1); measured with ``python -m dbcslam_research.bench_live`` (README).
+#: 10 ms, < 1 % of the poses dropped; gripper 500: p95 7.9 ms at load 1.1, the tightest of
+#: the three); measured with ``python -m dbcslam_research.bench_live`` (README).
 LIVE_PARTICLES: dict[str, int] = {"edge": 1000, "gripper": 500, "push": 500}
 #: Live default for a kind not in LIVE_PARTICLES.
 LIVE_PARTICLES_OTHER = 100
