@@ -9,6 +9,17 @@ import pytest
 
 from dbcslam_research.bench import reading_lines, render_markdown
 
+META: dict[str, Any] = {
+    "date_utc": "x",
+    "machine": "m",
+    "numpy": "2",
+    "cpus": 2,
+    "loadavg_1min_before_after": [0.0, 0.0],
+    "warmup": 5,
+    "repeat": 1,
+    "steps": 40,
+}
+
 
 def _row(scenario: str, particles: int, dbc: float, lemke: float, pgs: float) -> dict[str, Any]:
     return {
@@ -52,16 +63,7 @@ def test_markdown_contains_reading() -> None:
     result = {
         "scaling": [_row("edge", 100, 2.0, 10.0, 0.3)],
         "accuracy": [],
-        "meta": {
-            "date_utc": "x",
-            "machine": "m",
-            "numpy": "2",
-            "cpus": 2,
-            "loadavg_1min_before_after": [0.0, 0.0],
-            "warmup": 5,
-            "repeat": 1,
-            "steps": 40,
-        },
+        "meta": META,
     }
     md = render_markdown(result, "python -m dbcslam_research.bench")
     assert "**Reading the table.**" in md and "5.0x faster" in md
@@ -84,16 +86,7 @@ def test_replay_table_says_whether_the_replay_kept_within_the_data(
             "estimates": 400,
             "final_p_true": {"jaws": 1.0},
         },
-        "meta": {
-            "date_utc": "x",
-            "machine": "m",
-            "numpy": "2",
-            "cpus": 2,
-            "loadavg_1min_before_after": [0.0, 0.0],
-            "warmup": 5,
-            "repeat": 1,
-            "steps": 40,
-        },
+        "meta": META,
     }
     md = render_markdown(result, "python -m dbcslam_research.bench")
     row = next(line for line in md.splitlines() if line.startswith("| `bags/gripper`"))
