@@ -13,7 +13,7 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py)
 	$(BIN)/python -m pip install -r requirements.txt
 	# compat mode: a path entry, so `python -m pkg` from the repo root finds the real package
 	$(BIN)/python -m pip install --no-deps --config-settings editable_mode=compat $(foreach p,$(PKGS),-e $(p))
-	# compile the filter's numba kernels into their cache once (~15 s), not in a node's start
+	# compile the filter's numba kernels into their cache once (~30 s), not in a node's start
 	$(BIN)/python -c "from dbcslam_core.rbpf import warm_up_kernels as w; print(f'filter kernels compiled in {w():.1f} s')"
 	touch $@
 

@@ -1939,8 +1939,9 @@ class DbcSlamFilter:
         """Run the compiled kernels once, on a throwaway two-particle copy of this filter
         (same scenario and configuration, its own random numbers), so that the first real
         step does not pay numba's loading of the cached machine code (~0.3 s) or, on a
-        fresh install, its compilation (~13 s for the gripper's kernels, ~1.5 s more for the
-        push's support friction). Once per process and scenario kind; returns the seconds
+        fresh install, its compilation (~29 s for the kernels of all three kinds, measured
+        by `make venv` on a fresh clone: the entry and proposal kernels compile once per
+        velocity dimension). Once per process and scenario kind; returns the seconds
         spent (0 when already warm or without numba). A node calls :func:`warm_up_kernels`
         when it starts and this when it is configured, before the first pose arrives."""
         kind = self.scenario.kind
@@ -1976,7 +1977,7 @@ class DbcSlamFilter:
 
 def warm_up_kernels(kinds: tuple[str, ...] = ("gripper", "push", "edge")) -> float:
     """:meth:`DbcSlamFilter.warm_up` for the built-in scenario of each kind in ``kinds``
-    (their preset configurations): loads, or on a fresh install compiles (~15 s in all on a
+    (their preset configurations): loads, or on a fresh install compiles (~30 s in all on a
     2-core machine), the machine code every scenario kind needs. A node calls it at start-up,
     before it subscribes, so a first /scenario never waits for a compilation while poses
     arrive; ``make venv`` calls it once so the cache is filled at install. Returns the

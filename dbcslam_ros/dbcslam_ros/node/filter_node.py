@@ -128,7 +128,7 @@ class FilterCore:
         self.params: dict[str, Any] = dict(params)
         check_params(self.params)
         # the compiled kernels of every scenario kind, before the node subscribes: a fresh
-        # install compiles them here (~15 s), not while the first scenario's poses arrive
+        # install compiles them here (~30 s), not while the first scenario's poses arrive
         self.warm_up_s = warm_up_kernels()
         if self.warm_up_s > 1.0:
             self.log.info(f"compiled the filter kernels in {self.warm_up_s:.1f} s (cached now)")
