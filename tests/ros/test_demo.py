@@ -62,7 +62,9 @@ def test_demo_records_a_bag_and_summarises(demo_run: DemoRun) -> None:
     assert counts["/truth/object/pose"] == 201
     assert counts["/object/pose"] >= 195
     assert counts["/scenario"] == 1
-    assert counts["/dbcslam/markers"] == counts["/dbcslam/pose"] == metrics["estimates"]
+    assert counts["/dbcslam/pose"] == metrics["estimates"]
+    # markers at the node's period (0.1 s of stamp time): about one per ten estimates
+    assert 1 <= counts["/dbcslam/markers"] <= metrics["estimates"] // 10 + 2
     assert metrics["estimates"] >= 0.2 * counts["/object/pose"]
     # Smoke bound only: live accuracy depends on how many poses a loaded machine drops.
     assert metrics["position_rmse_over_noise"] < 5.0

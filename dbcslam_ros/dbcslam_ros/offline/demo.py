@@ -271,8 +271,7 @@ def _filter_argv(opts: DemoOptions, particles: int, seed: int) -> list[str]:
         f"seed:={seed}",
         "-p",
         f"marker_particles:={DEMO_MARKER_PARTICLES if opts.markers else 0}",
-        "-p",
-        "marker_period:=0.0",  # one marker message per estimate in the recording
+        # markers at the node's default period (0.1 s), as `dbcslam replay` writes them
     )
 
 

@@ -22,8 +22,9 @@ a summary table is printed (position RMSE vs the observation noise, contact/mode
 final friction posterior); metrics.json and paper-style PNG plots are written into the
 bag directory. Defaults: scenario gripper, the simulator's duration (4 s for gripper),
 particles: the filter node's live defaults (edge 1000, gripper 500, push 500), 20 particles
-drawn in /dbcslam/markers. A filter slower than the 100 Hz input drops poses (bounded
-lag); the summary says how many, and `dbcslam replay` of the bag answers every pose."""
+drawn in /dbcslam/markers (every 0.1 s, the node's default). A filter slower than the
+100 Hz input drops poses (bounded lag); the summary says how many, and `dbcslam replay` of
+the bag answers every pose."""
 
 _EXAMPLES = """\
   dbcslam demo
