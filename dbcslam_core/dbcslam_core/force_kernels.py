@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core import kernels
-from dbcslam_core.force_likelihood import OUTLIER_FRACTION, OUTLIER_STD
+from dbcslam_core.force_likelihood import OUTLIER_FRACTION, OUTLIER_STD, check_outlier_model
 from dbcslam_core.row_pool import RowPool
 
 __all__ = ["AVAILABLE", "normal_force_log_likelihood", "warm_up"]
@@ -159,12 +159,7 @@ def normal_force_log_likelihood(
     Raises:
         ValueError: bad outlier parameters or impulse_response without sig2.
     """
-    if not (0.0 <= outlier_fraction < 1.0 and math.isfinite(outlier_std) and outlier_std > 0):
-        msg = (
-            f"outlier_fraction must be in [0, 1) and outlier_std > 0 N, got "
-            f"{outlier_fraction}, {outlier_std}"
-        )
-        raise ValueError(msg)
+    check_outlier_model(outlier_fraction, outlier_std)
     if (impulse_response is None) != (sig2 is None):
         msg = "impulse_response and sig2 go together (both or neither)"
         raise ValueError(msg)

@@ -64,6 +64,7 @@ __all__ = [
     "OUTLIER_STD",
     "STATIC_FRICTION_RATIO",
     "active_contacts",
+    "check_outlier_model",
     "force_log_likelihood",
     "predicted_force",
     "static_preload_bound",
@@ -154,6 +155,20 @@ def static_preload_bound(
     return out
 
 
+def check_outlier_model(outlier_fraction: float, outlier_std: float) -> None:
+    """Validate the contaminated-Gaussian parameters: fraction in [0, 1), std (N) > 0.
+
+    Raises:
+        ValueError: naming both values.
+    """
+    if not (0.0 <= outlier_fraction < 1.0 and math.isfinite(outlier_std) and outlier_std > 0):
+        msg = (
+            f"outlier_fraction must be in [0, 1) and outlier_std > 0 N, got "
+            f"{outlier_fraction}, {outlier_std}"
+        )
+        raise ValueError(msg)
+
+
 def force_log_likelihood(
     reading: npt.ArrayLike,
     std: float,
@@ -191,12 +206,7 @@ def force_log_likelihood(
     if axes not in FORCE_AXES:
         msg = f"force axes must be one of {FORCE_AXES}, got {axes!r}"
         raise ValueError(msg)
-    if not (0.0 <= outlier_fraction < 1.0 and math.isfinite(outlier_std) and outlier_std > 0):
-        msg = (
-            f"outlier_fraction must be in [0, 1) and outlier_std > 0 N, got "
-            f"{outlier_fraction}, {outlier_std}"
-        )
-        raise ValueError(msg)
+    check_outlier_model(outlier_fraction, outlier_std)
     f_pred, t = predicted_force(normal, ln, lt, dt)
     r = np.asarray(reading, dtype=float) - f_pred
     cov = np.broadcast_to(std * std * np.eye(2), (*r.shape[:-1], 2, 2))
