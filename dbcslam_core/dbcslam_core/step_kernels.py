@@ -580,76 +580,39 @@ def _row_evidence(  # noqa: PLR0917 - numba helper (inlined): positional arrays
                 lj[e * n_f + f] = log_alpha[s0 + e, f]
         return
     best = -np.inf  # the reference: the first element of the largest log alpha
-    n_ref = -1
+    e_ref = 0
     f_ref = 0
     for e in range(n_e):
         for f in range(n_f):
             if log_alpha[s0 + e, f] > best:
                 best = log_alpha[s0 + e, f]
-                n_ref = s0 + e
+                e_ref = e
                 f_ref = f
+    prune = u_obs < np.inf and n_e * n_f > 1
     cut = -np.inf
-    lp_ref = 0.0
-    same_ref = False
-    if n_ref >= 0 and u_obs < np.inf and n_e * n_f > 1:
-        lp_ref = _gaussian_at(
-            p,
-            n_ref,
-            f_ref,
-            q,
-            v_h,
-            cov,
-            obs_value,
-            angular,
-            s_diag,
-            dt,
-            low,
-            z,
-            y,
-            False,
-            vm,
-            vc,
-            dims,
-        )
-        same_ref = shared and not _slides(md, n_ref)
-        cut = best + lp_ref - PRUNE_NATS - u_obs
-    else:
-        n_ref = -1  # (no reference computed)
-    for e in range(n_e):
+    # the reference first (its log p(o) sets the cut), then the rest in any order: the
+    # values do not depend on it (an f-independent entry's log p(o) is the same for every f)
+    for k in range(n_e):
+        e = (e_ref + k) % n_e
         n = s0 + e
         same = shared and not _slides(md, n)  # v_h, cov do not depend on f
         have = False  # log p(o) of this entry computed (for every f when same)
         log_pred = 0.0
-        for f in range(n_f):
+        for j in range(n_f):
+            f = (f_ref + j) % n_f
             la = log_alpha[n, f]
             if la < cut:
                 lj[e * n_f + f] = -np.inf
                 continue
             if not (same and have):
-                if n == n_ref and (f == f_ref or same_ref):
-                    log_pred = lp_ref
-                else:
-                    log_pred = _gaussian_at(
-                        p,
-                        n,
-                        f,
-                        q,
-                        v_h,
-                        cov,
-                        obs_value,
-                        angular,
-                        s_diag,
-                        dt,
-                        low,
-                        z,
-                        y,
-                        False,
-                        vm,
-                        vc,
-                        dims,
-                    )
+                log_pred = _gaussian_at(
+                    p, n, f, q, v_h, cov, obs_value, angular, s_diag, dt, low, z, y, False,
+                    vm, vc, dims,
+                )  # fmt: skip
                 have = True
             lj[e * n_f + f] = la + log_pred
+            if prune and k == 0 and j == 0:
+                cut = best + log_pred - PRUNE_NATS - u_obs
 
 
 def _gumbel_pick(lj: FloatArray, n_m: int, uniforms: FloatArray, row: int) -> int:
@@ -774,22 +737,18 @@ def _row_log_posterior(  # noqa: PLR0917 - numba helper (inlined): positional ar
     n_star, f_star, u_dens = star
     n_f = log_alpha.shape[1]
     n_m = n_e * n_f
+    prune = n_m > 1 and u_dens < np.inf
     cut = -np.inf
-    dens_ref = 0.0
-    same_ref = False
-    la_star = log_alpha[n_star, f_star]
-    if n_m > 1 and u_dens < np.inf and np.isfinite(la_star):
-        dens_ref = _entry_density(p, n_star, f_star, v_new, v_h, cov, a, low, z, nv)
-        same_ref = shared and not _slides(md, n_star)
-        cut = la_star + dens_ref - PRUNE_NATS - u_dens
-    else:
-        n_star = -1  # (no reference computed)
-    for e in range(n_e):
+    e_star = n_star - s0
+    # the drawn element first (its lpost sets the cut), then the rest (order-free values)
+    for k in range(n_e):
+        e = (e_star + k) % n_e
         n = s0 + e
         same = shared and not _slides(md, n)
         f_dens = -1  # the f whose density was computed
         dens = 0.0
-        for f in range(n_f):
+        for j in range(n_f):
+            f = (f_star + j) % n_f
             m = e * n_f + f
             la = log_alpha[n, f]
             if not np.isfinite(la) or la < cut:
@@ -800,11 +759,10 @@ def _row_log_posterior(  # noqa: PLR0917 - numba helper (inlined): positional ar
                 lpost[m] = la + dens
             else:
                 f_dens = f
-                if n == n_star and (f == f_star or same_ref):
-                    dens = dens_ref
-                else:
-                    dens = _entry_density(p, n, f, v_new, v_h, cov, a, low, z, nv)
+                dens = _entry_density(p, n, f, v_new, v_h, cov, a, low, z, nv)
                 lpost[m] = la + dens
+            if prune and k == 0 and j == 0 and np.isfinite(la):
+                cut = lpost[m] - PRUNE_NATS - u_dens
 
 
 def _row_marginals(  # noqa: PLR0917 - numba helper (inlined): positional arrays
