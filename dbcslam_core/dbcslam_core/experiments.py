@@ -141,7 +141,9 @@ class RunTrace:
     (posterior NaN in never-touched cells; weight = accumulated contact evidence; None if the
     method has no map); rough_intervals: high-friction spans along the edge (m); edge_y:
     the edge line (m); baseline_q / baseline_label: optional estimate of a baseline drawn
-    next to this run in the figures.
+    next to this run in the figures; log_likelihood (T',) the filter's log p(o_k | o_<k)
+    per step (nats; its sum is the run's log marginal likelihood, the evidence for the
+    filter's model).
     """
 
     scenario: str
@@ -171,6 +173,7 @@ class RunTrace:
     n_joint_modes: int | None = None
     baseline_q: F64 | None = None
     baseline_label: str = "fixed-friction baseline"
+    log_likelihood: F64 | None = None
 
 
 @dataclass(frozen=True)
@@ -345,6 +348,7 @@ def run_filter(
         true_friction_index=_true_friction_index(tr, cands),
         live_hypotheses=run.live,
         step_time=run.step_time,
+        log_likelihood=run.log_likelihood,
         noise_position=sc.noise.position,
         noise_yaw=sc.noise.yaw,
         map_edges=map_edges,
@@ -359,13 +363,15 @@ def run_filter(
 @dataclass(frozen=True)
 class _Driven:
     """Per step k = 1..n-1 of a run: the estimate's pose, mode probabilities, friction
-    posterior of the first pair, live hypotheses and step wall time (s); the last estimate."""
+    posterior of the first pair, live hypotheses, step wall time (s) and log predictive
+    likelihood (nats); the last estimate."""
 
     est_q: F64
     est_modes: F64
     friction: F64
     live: F64
     step_time: F64
+    log_likelihood: F64
     last: Any
 
 
@@ -390,6 +396,7 @@ def _drive(
     fric = np.zeros((n - 1, len(sc.friction.candidates[0])))
     live = np.zeros(n - 1)
     times = np.zeros(n - 1)
+    log_lik = np.zeros(n - 1)
     last: Any = None
     for k in range(1, n):
         inp = FilterInput(
@@ -404,10 +411,11 @@ def _drive(
         est_modes[k - 1] = est.modes
         fric[k - 1] = est.friction[0, : fric.shape[1]]
         live[k - 1] = est.live_hypotheses
+        log_lik[k - 1] = est.log_likelihood
         last = est
         if progress is not None:
             progress(k, n - 1)
-    return _Driven(est_q, est_modes, fric, live, times, last)
+    return _Driven(est_q, est_modes, fric, live, times, log_lik, last)
 
 
 def _true_friction_index(tr: Trajectory, cands: Sequence[float]) -> int:

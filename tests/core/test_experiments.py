@@ -22,6 +22,7 @@ from dbcslam_core.experiments import (
     rmse_target,
     run_black_box,
     run_experiments,
+    run_fixed_friction,
     run_parallel,
     run_task,
     score,
@@ -176,6 +177,24 @@ def test_run_black_box_record() -> None:
     m = score(trace)
     assert m["live_hypotheses"] == 1.0
     assert m["position_rmse"] < tr.scenario.noise.position
+
+
+def test_run_records_the_evidence_of_the_filter_model() -> None:
+    """RunTrace.log_likelihood holds log p(o_k | o_<k) per step; summed it selects the true
+    friction among fixed-friction filters on the core's synthetic gripper (model evidence)."""
+    tr = make_trajectory("gripper", 0)
+    true = int(np.argmin(np.abs(np.asarray(tr.scenario.friction.candidates[0]) - tr.mu_pair[0])))
+    evidence = {}
+    for c in range(len(tr.scenario.friction.candidates[0])):
+        trace = run_fixed_friction(tr, c, seed=0, particles=60)
+        assert trace.log_likelihood is not None
+        assert trace.log_likelihood.shape == (tr.n_steps - 1,)
+        assert np.all(np.isfinite(trace.log_likelihood))
+        evidence[c] = float(np.sum(trace.log_likelihood))
+    wrong = max(v for c, v in evidence.items() if c != true)
+    assert evidence[true] > wrong + 3.0, evidence
+    box = run_black_box(make_trajectory("edge", 0, 40), seed=0, particles=50, solver="pgs")
+    assert box.log_likelihood is not None and np.all(np.isfinite(box.log_likelihood))
 
 
 def _square(x: int) -> int:

@@ -38,12 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from dbcslam_core.baselines import fixed_friction_filter
 from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.errors import DbcSlamError
-from dbcslam_core.experiments import run_filter
-from dbcslam_core.observation import PoseObservation
-from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
+from dbcslam_core.experiments import run_fixed_friction
+from dbcslam_core.rbpf import FilterConfig
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
 from dbcslam_research.experiments_sim import sim_trajectory
@@ -112,44 +110,19 @@ def impact_residuals(
     return out
 
 
-class _EvidenceRecorder:
-    """`run_filter` adapter that sums the filter's log p(o_k | o_<k) over the run (nats)."""
-
-    def __init__(self, filt: DbcSlamFilter) -> None:
-        self.filt = filt
-        self.log_ml = 0.0
-
-    def initialize(
-        self,
-        q_mean: Any,
-        q_std: Any,
-        v_mean: Any = None,
-        v_std: Any = None,
-        joints: Any = None,
-    ) -> None:
-        """Draw the initial particles (delegates)."""
-        self.filt.initialize(q_mean, q_std, v_mean, v_std, joints=joints)
-
-    def step(self, observation: PoseObservation | None, inputs: FilterInput) -> Estimate:
-        """One filter step; adds its log predictive likelihood."""
-        est = self.filt.step(observation, inputs)
-        self.log_ml += est.log_likelihood
-        return est
-
-
 def _evidence_task(args: tuple[int, int, int]) -> dict[str, Any]:
     """Log marginal likelihood of every candidate's fixed-friction filter on pybullet run
     `run` with filter seed `fseed` and `particles` particles."""
     run, fseed, particles = args
     tr = _run(run)
     sc = tr.scenario
-    cfg = FilterConfig.preset("gripper", particles=particles, friction_bank=False)
     log_ml = []
     for c in range(len(sc.friction.candidates[0])):
-        filt = fixed_friction_filter(sc, c, cfg, np.random.default_rng([fseed, 2]))
-        rec = _EvidenceRecorder(filt)
-        run_filter(rec, tr, method="fixed", seed=fseed, particles=particles)
-        log_ml.append(rec.log_ml)
+        trace = run_fixed_friction(
+            tr, c, seed=fseed, particles=particles, overrides={"friction_bank": False}
+        )
+        assert trace.log_likelihood is not None  # (run_filter records it)
+        log_ml.append(float(np.sum(trace.log_likelihood)))
     true = _true_index(tr)
     post = np.log(np.asarray(sc.friction.prior[0], dtype=np.float64)) + np.asarray(log_ml)
     post = np.exp(post - post.max())
