@@ -72,3 +72,6 @@ def test_report_states_the_measured_spread(cause: dict[str, Any]) -> None:
     # mean 3.0, median 3.0, min -4.0, pooled within-run std sqrt((4+4+4+4)/2) = 2.83
     assert "| 40 | 3.0 | 3.0 | -4.0 | 2.8 | 2 / 4 | 1/0: 0.02, 1/1: 0.50 |" in md
     assert "| one step of dt (the filter) |" in md
+    assert f"the {cause['scored_steps']} of {cause['steps']} steps" in md
+    assert cause["scored_steps"] == cause["steps"]  # before the squeezed grasp: all solve
+    assert "one step none; 10 sub-steps none." in md

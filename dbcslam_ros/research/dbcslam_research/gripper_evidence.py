@@ -85,28 +85,43 @@ def impact_residuals(
     """Section 1: per-candidate velocity log-likelihood of pybullet's steps (run `seed`,
     `duration` s, None = the simulator's default) under the one-step and the sub-stepped
     model (the gripper preset's velocity process noise), summed relative to the best
-    candidate, and the `top` steps where the candidates differ most (nats)."""
+    candidate over the steps where both models solve for every candidate, and the `top`
+    steps where the candidates differ most (nats). Steps where the contact LCP has no
+    solution from pybullet's state (the squeezed, jammed grasp) are counted, not scored."""
     tr = _run(seed, duration)
     sc = tr.scenario
     cands = [float(c) for c in sc.friction.candidates[0]]
     sig = np.asarray(FilterConfig.preset("gripper").process_noise[: sc.nq])
-    out: dict[str, Any] = {"seed": seed, "candidates": cands, "true_mu": float(tr.mu_pair[0])}
-    skipped = 0
+    per_model: dict[int, dict[int, np.ndarray]] = {}
     for n in (1, substeps):
         model = PlanarModel(dataclasses.replace(sc, dt=sc.dt / n))
-        totals = np.zeros(len(cands))
-        steps: list[dict[str, Any]] = []
+        lls: dict[int, np.ndarray] = {}
         for k in range(tr.n_steps - 1):
             vs = [_advance(model, tr, k, mu, n) for mu in cands]
-            if any(v is None for v in vs):
-                skipped += 1
-                continue
-            ll = np.array([-0.5 * float(np.sum(((v - tr.v[k + 1]) / sig) ** 2)) for v in vs])
-            totals += ll - ll.max()
-            steps.append({"step": k, "spread": float(np.ptp(ll)), "ll": (ll - ll.max()).tolist()})
-        steps.sort(key=lambda s: -s["spread"])
-        out[f"substeps_{n}"] = {"total": (totals - totals.max()).tolist(), "top": steps[:top]}
-    out["skipped_steps"] = skipped
+            if all(v is not None for v in vs):
+                res = [((v - tr.v[k + 1]) / sig) for v in vs if v is not None]
+                lls[k] = np.array([-0.5 * float(np.sum(r**2)) for r in res])
+        per_model[n] = lls
+    common = sorted(set(per_model[1]) & set(per_model[substeps]))
+    out: dict[str, Any] = {
+        "seed": seed,
+        "candidates": cands,
+        "true_mu": float(tr.mu_pair[0]),
+        "steps": tr.n_steps - 1,
+        "scored_steps": len(common),
+        "unsolved_steps": {
+            str(n): [k for k in range(tr.n_steps - 1) if k not in lls]
+            for n, lls in per_model.items()
+        },
+    }
+    for n, lls in per_model.items():
+        rel = {k: lls[k] - lls[k].max() for k in common}
+        totals = np.sum([rel[k] for k in common], axis=0) if common else np.zeros(len(cands))
+        ranked = sorted(common, key=lambda k: -float(np.ptp(rel[k])))
+        out[f"substeps_{n}"] = {
+            "total": (totals - totals.max()).tolist(),
+            "top": [{"step": k, "ll": rel[k].tolist()} for k in ranked[:top]],
+        }
     return out
 
 
@@ -165,6 +180,17 @@ def _within_run_std(rows: Sequence[dict[str, Any]]) -> float:
     return float(np.sqrt(sum(d * d for d in dev) / dof)) if dof else float("nan")
 
 
+def _spans(steps: Sequence[int]) -> str:
+    """'3-5, 9' for [3, 4, 5, 9] ('none' if empty)."""
+    spans: list[list[int]] = []
+    for k in steps:
+        if spans and k == spans[-1][1] + 1:
+            spans[-1][1] = k
+        else:
+            spans.append([k, k])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans) or "none"
+
+
 def render_markdown(result: dict[str, Any], command: str) -> str:
     """The report (sections 1 and 2) as Markdown."""
     cause = result["cause"]
@@ -180,8 +206,15 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
         f"(run {cause['seed']}, true mu {cause['true_mu']:g})",
         "",
         "Log-likelihood of pybullet's next velocity under the filter's velocity process noise, "
-        "summed over the run relative to the best candidate (nats), and the steps where the "
-        "candidates differ most (relative log-likelihood per candidate):",
+        f"summed over the {cause['scored_steps']} of {cause['steps']} steps that both models "
+        "solve for every candidate, relative to the best candidate (nats), and the steps where "
+        "the candidates differ most (relative log-likelihood per candidate). Not scored (the "
+        "contact LCP has no solution from pybullet's state; the jammed, squeezed grasp): "
+        + "; ".join(
+            f"{'one step' if n == '1' else n + ' sub-steps'} {_spans(ks)}"
+            for n, ks in cause["unsolved_steps"].items()
+        )
+        + ".",
         "",
         "| model | " + " | ".join(f"mu {c:g}" for c in cands) + " | steps |",
         "|---|" + "---|" * (len(cands) + 1),
