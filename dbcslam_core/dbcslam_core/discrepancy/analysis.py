@@ -596,6 +596,114 @@ class _Confirmed:
     lines: tuple[str, ...]
 
 
+class _Confirmation:
+    """Steps 5-6 of the module docstring at `particles` (`confirm_factor` x the analysis'
+    particles, scored by `big`): re-score a winner close to the noise (`retest`) and an
+    ambiguous pair (`resolve`), keeping the report lines and the effects confirmed so far.
+    `out` is the candidate list (a winner that is not confirmed is marked not clear in it)."""
+
+    def __init__(
+        self,
+        prep: _Prepared,
+        out: list[CandidateFit],
+        cfg: DiscrepancyConfig,
+        big: Scorer,
+        *,
+        particles: int,
+        noise: float,
+        say: Callable[[str], None],
+    ) -> None:
+        self.prep = prep
+        self.out = out
+        self.cfg = cfg
+        self.big = big
+        self.particles = particles
+        self.noise = noise
+        self.say = say
+        self.n_h = max(prep.nominal_held.n_obs, 2)
+        self.lines: list[str] = []
+        self.confirmed: set[str] = set()
+
+    def _bic(self, c: CandidateFit) -> float:
+        return 0.5 * c.n_params * math.log(self.n_h)
+
+    def _close_to_noise(self, c: CandidateFit) -> bool:
+        return c.effect not in self.confirmed and (
+            _margin_key(c) < self.cfg.confirm_noise * self.noise
+        )
+
+    def _log(self, kind: str, line: str) -> None:
+        self.lines.append(line)
+        self.say(f"{kind}: {line}")
+
+    def retest(self, c: CandidateFit, why: str) -> bool:
+        """Step 5 for one candidate: does it still beat the nominal model held out?"""
+        hyp = Hypothesis.make(c.effect, c.params)
+        nom, got = nominal_and(hyp, self.prep.held, self.big, self.prep.seeds)
+        margin = self._bic(c) + self.cfg.min_margin
+        ok = beats(got, nom.best, margin=margin, z=self.cfg.z)
+        self._log(
+            "confirmation",
+            f"{c.effect}: {why}; at {self.particles} particles held-out "
+            f"{got.lme - nom.best:+.1f} nats over the nominal model's best seed "
+            f"(needed > {margin + self.cfg.z * got.se:.1f}): "
+            f"{'confirmed' if ok else 'not confirmed'}",
+        )
+        if ok:
+            self.confirmed.add(c.effect)
+        return ok
+
+    def winner(self) -> tuple[CandidateFit | None, tuple[str, ...]]:
+        """Steps 4-5: the verdict's winner, re-tested while it is close to the noise; one
+        that is not confirmed is marked not clear and the next candidate is tried."""
+        win, amb = verdict(self.out, self.cfg)
+        while win is not None and self._close_to_noise(win):
+            why = (
+                f"margin {_margin_key(win):.0f} nats < {self.cfg.confirm_noise:g} x nominal "
+                f"seed std {self.noise:.0f}"
+            )
+            if self.retest(win, why):
+                break
+            self.out[self.out.index(win)] = dataclasses.replace(
+                win,
+                clear=False,
+                note=f"not confirmed at {self.particles} particles ({self.lines[-1]})",
+            )
+            win, amb = verdict(self.out, self.cfg)
+        return win, amb
+
+    def resolve(
+        self, win: CandidateFit, amb: tuple[str, ...]
+    ) -> tuple[CandidateFit, tuple[str, ...]]:
+        """Step 6: an ambiguous pair re-scored; the leader is named alone when it beats the
+        other there (and, if it is not the winner and close to the noise, is confirmed)."""
+        pair = [c for c in self.out if c.effect in amb]
+        hyps = {c.effect: Hypothesis.make(c.effect, c.params) for c in pair}
+        held, seeds = self.prep.held, self.prep.seeds
+        self.big.prefetch((h, held, s) for h in hyps.values() for s in seeds)
+        got = {e: held_scores(h, held, self.big, seeds) for e, h in hyps.items()}
+        a, b = sorted(pair, key=lambda c: got[c.effect].lme - self._bic(c), reverse=True)
+        ga, gb = got[a.effect], got[b.effect]
+        margin = self.cfg.min_margin + self._bic(a) - self._bic(b)
+        alone = beats(ga, gb.best, margin=margin, z=self.cfg.z)
+        self._log(
+            "ambiguity",
+            f"{a.effect} or {b.effect}: at {self.particles} particles held-out "
+            f"evidence {ga.lme:.1f} (standard error {ga.se:.1f}) against {gb.lme:.1f} (best "
+            f"seed {gb.best:.1f}; needed > {margin + self.cfg.z * ga.se:.1f} over it): "
+            f"{a.effect + ' alone' if alone else 'both'}",
+        )
+        if not alone:
+            return win, amb
+        if (
+            a is not win
+            and self._close_to_noise(a)
+            and not self.retest(a, "leader of an ambiguous pair, close to the noise")
+        ):
+            return win, amb
+        return a, ()
+
+
 def confirm(
     prep: _Prepared,
     cands: Sequence[CandidateFit],
@@ -603,100 +711,26 @@ def confirm(
     nom_held: HeldScores | None,
     say: Callable[[str], None],
 ) -> _Confirmed:
-    """Steps 4-5 of the module docstring: the verdict, a winner close to the noise
-    re-scored with `confirm_factor` x the particles before it is named."""
+    """Steps 4-6 of the module docstring: the verdict, a winner close to the noise
+    re-scored with `confirm_factor` x the particles before it is named, an ambiguous pair
+    re-scored there too."""
     out = list(cands)
     if cfg.confirm_factor <= 1 or nom_held is None:
         win, amb = verdict(out, cfg)
         return _Confirmed(win, amb, out, 0, 0.0, ())
-    noise = nom_held.std if math.isfinite(nom_held.std) else 0.0
-    n_h = max(prep.nominal_held.n_obs, 2)
     scfg = ScoreConfig(
         particles=cfg.particles * cfg.confirm_factor,
         seed=cfg.seed,
         workers=cfg.workers,
         filter_overrides=cfg.filter_overrides,
     )
-    lines: list[str] = []
-    confirmed: set[str] = set()
+    noise = nom_held.std if math.isfinite(nom_held.std) else 0.0
     with Scorer(scfg, say) as big:
-
-        def retest(c: CandidateFit, why: str) -> bool:
-            hyp = Hypothesis.make(c.effect, c.params)
-            nom, got = nominal_and(hyp, prep.held, big, prep.seeds)
-            margin = 0.5 * c.n_params * math.log(n_h) + cfg.min_margin
-            ok = beats(got, nom.best, margin=margin, z=cfg.z)
-            line = (
-                f"{c.effect}: {why}; at {scfg.particles} particles held-out "
-                f"{got.lme - nom.best:+.1f} nats over the nominal model's best seed "
-                f"(needed > {margin + cfg.z * got.se:.1f}): "
-                f"{'confirmed' if ok else 'not confirmed'}"
-            )
-            lines.append(line)
-            say("confirmation: " + line)
-            if ok:
-                confirmed.add(c.effect)
-            return ok
-
-        win, amb = verdict(out, cfg)
-        while (
-            win is not None
-            and win.effect not in confirmed
-            and _margin_key(win) < cfg.confirm_noise * noise
-        ):
-            why = (
-                f"margin {_margin_key(win):.0f} nats < {cfg.confirm_noise:g} x nominal seed "
-                f"std {noise:.0f}"
-            )
-            if retest(win, why):
-                break
-            i = out.index(win)
-            out[i] = dataclasses.replace(
-                win,
-                clear=False,
-                note=f"not confirmed at {scfg.particles} particles ({lines[-1]})",
-            )
-            win, amb = verdict(out, cfg)
-
-        def resolve(
-            win: CandidateFit, amb: tuple[str, ...]
-        ) -> tuple[CandidateFit, tuple[str, ...]]:
-            """Step 6 of the module docstring: an ambiguous pair re-scored at the larger
-            particle count; the leader is named alone when it beats the other there."""
-            pair = [c for c in out if c.effect in amb]
-            hyps = {c.effect: Hypothesis.make(c.effect, c.params) for c in pair}
-            big.prefetch((h, prep.held, s) for h in hyps.values() for s in prep.seeds)
-            got = {e: held_scores(h, prep.held, big, prep.seeds) for e, h in hyps.items()}
-
-            def bic(c: CandidateFit) -> float:
-                return 0.5 * c.n_params * math.log(n_h)
-
-            a, b = sorted(pair, key=lambda c: got[c.effect].lme - bic(c), reverse=True)
-            ga, gb = got[a.effect], got[b.effect]
-            margin = cfg.min_margin + bic(a) - bic(b)
-            alone = beats(ga, gb.best, margin=margin, z=cfg.z)
-            line = (
-                f"{a.effect} or {b.effect}: at {scfg.particles} particles held-out evidence "
-                f"{ga.lme:.1f} (standard error {ga.se:.1f}) against {gb.lme:.1f} (best seed "
-                f"{gb.best:.1f}; needed > {margin + cfg.z * ga.se:.1f} "
-                f"over it): {a.effect + ' alone' if alone else 'both'}"
-            )
-            lines.append(line)
-            say("ambiguity: " + line)
-            if not alone:
-                return win, amb
-            if (
-                a is not win
-                and a.effect not in confirmed
-                and _margin_key(a) < cfg.confirm_noise * noise
-                and not retest(a, "leader of an ambiguous pair, close to the noise")
-            ):
-                return win, amb
-            return a, ()
-
+        conf = _Confirmation(prep, out, cfg, big, particles=scfg.particles, noise=noise, say=say)
+        win, amb = conf.winner()
         if win is not None and amb and frozenset(amb) not in EQUIVALENT:
-            win, amb = resolve(win, amb)
-        return _Confirmed(win, amb, out, big.evaluations, big.cpu_seconds, tuple(lines))
+            win, amb = conf.resolve(win, amb)
+        return _Confirmed(win, amb, out, big.evaluations, big.cpu_seconds, tuple(conf.lines))
 
 
 def _pictures(
