@@ -11,7 +11,9 @@ effect and its size are drawn by a seeded generator (`synthetic.draw_edge_effect
 
 from __future__ import annotations
 
+import gc
 import math
+import weakref
 from dataclasses import replace
 from functools import cache
 
@@ -287,6 +289,22 @@ def test_score_is_deterministic_for_a_seed() -> None:
     assert a.loglik == b.loglik and math.isfinite(a.loglik)
     assert a.n_obs == run.t.size - ScoreConfig().skip
     assert 0.0 < a.pred_rmse < 0.05
+
+
+def test_scorer_cache_never_serves_a_freed_runs_trace() -> None:
+    """The cache is keyed on the run's id: a run scored and then dropped by the caller must
+    stay alive in the scorer, or a new run could get its id (and its cached trace)."""
+    tr = edge_sweep_trajectory(3, duration=0.6)
+    sc = Scorer(ScoreConfig(particles=20))
+    run = Run("r", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+    first = sc.trace(Hypothesis(), run)
+    alive = weakref.ref(run)
+    del run
+    gc.collect()
+    assert alive() is not None  # held by the scorer: its id cannot be recycled
+    shifted = Run("r", tr.scenario, tr.t, tr.obs + 0.05, tr.u, tr.env_obs)
+    assert sc.trace(Hypothesis(), shifted).loglik != first.loglik
+    assert sc.evaluations == 2
 
 
 def test_worker_pool_gives_the_serial_scores() -> None:

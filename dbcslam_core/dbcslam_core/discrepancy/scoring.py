@@ -177,6 +177,9 @@ class Scorer:
         self.cfg = cfg or ScoreConfig()
         self.say = progress or (lambda s: None)
         self._cache: dict[tuple[Hypothesis, int, int], RunTrace] = {}
+        # the runs the cache is keyed on (by id): held so that no id is recycled for another
+        # run while its traces are cached (a freed run's id can go to the next new one)
+        self._runs: dict[int, Run] = {}
         self._pool: Executor | None = None
         self.evaluations = 0
         self.cpu_seconds = 0.0
@@ -199,6 +202,7 @@ class Scorer:
             self._pool = None
 
     def _key(self, hyp: Hypothesis, run: Run, seed: int | None) -> tuple[Hypothesis, int, int]:
+        self._runs.setdefault(id(run), run)
         return (hyp, id(run), self.cfg.seed if seed is None else seed)
 
     def _store(self, job: Job, tr: RunTrace, cpu: float) -> None:
