@@ -143,3 +143,10 @@ def test_missing_data_is_a_usage_error(tmp_path: Path) -> None:
     with pytest.raises(UsageError, match=r"no \.h5"):
         resolve_data(tmp_path)
     assert len(resolve_data(DATA)) == 3
+
+
+def test_default_data_is_the_shared_copy_beside_the_repository() -> None:
+    from dbcslam_research.mitpush_eval import DEFAULT_DATA
+
+    repo = Path(__file__).resolve().parents[2]
+    assert repo.parent / "shared" / "data" / "mit-push" == DEFAULT_DATA

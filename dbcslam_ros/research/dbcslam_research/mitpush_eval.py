@@ -76,7 +76,7 @@ __all__ = [
     "summarise",
 ]
 
-_REPO = Path(__file__).resolve().parents[2]
+_REPO = Path(__file__).resolve().parents[3]  # dbcslam_ros/research/dbcslam_research/<this>
 #: Default data location: the shared dataset copy next to the repository.
 DEFAULT_DATA = _REPO.parent / "shared" / "data" / "mit-push"
 #: Default output directory of the table and figures.
