@@ -19,6 +19,17 @@ def test_splits_are_shape_disjoint_and_reverse_each_other() -> None:
     assert (fa, ha) == (hb, fb)
 
 
+def test_round_split_alternates_pushes_of_the_same_objects() -> None:
+    bags = [_bag(s, i) for s in ("ellip1", "ellip3", "hex") for i in range(5)]
+    fit, held = md.split_bags(bags, "R", 1)
+    assert len(fit) == 5 and len(held) == 5 and not set(fit) & set(held)
+    assert {md._shape(b) for b in fit + held} == {"ellip1", "ellip3"}
+    assert fit[:3] == [_bag("ellip1", 0), _bag("ellip1", 2), _bag("ellip1", 4)]
+    assert held[:2] == [_bag("ellip1", 1), _bag("ellip1", 3)]
+    fa, ha = md.split_bags(bags, "A", 1)
+    assert {md._shape(b) for b in fa} == {"hex"} and len(ha) == 10
+
+
 def test_subset_keeps_every_nth_push_of_each_shape() -> None:
     bags = [_bag(s, i) for s in ("hex", "rect1", "ellip1") for i in range(5)]
     got = md._subset(bags, ("rect1", "hex"), 2)

@@ -150,3 +150,18 @@ def test_default_data_is_the_shared_copy_beside_the_repository() -> None:
 
     repo = Path(__file__).resolve().parents[2]
     assert repo.parent / "shared" / "data" / "mit-push" == DEFAULT_DATA
+
+
+def test_select_shapes_keeps_the_named_shapes_and_names_missing_ones() -> None:
+    from dbcslam_research.mitpush_eval import select_shapes
+
+    files = [
+        Path(f"motion_surface=abs_shape={s}_a=0_v=10_i=0.000_s=0.{i}_t=0.000.h5")
+        for s in ("ellip1", "hex", "ellip3")
+        for i in range(2)
+    ]
+    assert select_shapes(files, None) == files
+    got = select_shapes(files, ("ellip1", "ellip3"))
+    assert [f.name.split("shape=")[1][:6] for f in got] == ["ellip1"] * 2 + ["ellip3"] * 2
+    with pytest.raises(UsageError, match="rect1"):
+        select_shapes(files, ("rect1",))

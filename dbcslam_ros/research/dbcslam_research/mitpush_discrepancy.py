@@ -4,7 +4,9 @@ Run ``python -m dbcslam_research.mitpush_discrepancy [DATA_DIR] --out DIR`` (DAT
 ../shared/data/mit-push; reads ``abs/train``). For each push model (``surface.model``:
 ``dynamic`` and ``quasi_static``) the pushes are imported into bags (``dbcslam
 import-mitpush --push-model M``, noise-free Vicon poses) and split by shape: split ``A`` fits
-on rect1 + hex and holds out ellip1 + ellip3; split ``B`` the reverse. Then, per split:
+on rect1 + hex and holds out ellip1 + ellip3; split ``B`` the reverse; split ``R`` (``--splits
+R``) fits every second push of the round objects (ellip1 + ellip3) and holds out the others.
+Then, per split:
 
 1. *Filter noise as a nuisance parameter.* The scoring filter's velocity process noise is
    the preset's (`FilterConfig.preset("push")`: 3 mm/s, 0.1 rad/s per step) times a factor
@@ -36,14 +38,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SPLITS", "DiscrepancyStudy", "main", "run_study"]
+__all__ = ["SPLITS", "DiscrepancyStudy", "main", "run_study", "split_bags"]
 
 DEFAULT_DATA = Path("../shared/data/mit-push")
 SPLITS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "A": (("rect1", "hex"), ("ellip1", "ellip3")),
     "B": (("ellip1", "ellip3"), ("rect1", "hex")),
+    "R": (("ellip1", "ellip3"), ("ellip1", "ellip3")),
 }
-"""Split name -> (training shapes, held-out shapes)."""
+"""Split name -> (training shapes, held-out shapes). Where the two are the same objects
+(``R``: the round ones) the pushes alternate: of the shapes' pushes in file-name order
+(shape by shape) the 1st, 3rd, ... are fitted and the 2nd, 4th, ... held out, so the
+held-out data are new pushes of the same objects (a property of the objects, such as their
+support pressure, can be tested there; A and B test what transfers to other shapes)."""
 MODELS: tuple[str, ...] = ("dynamic", "quasi_static")
 
 
@@ -98,6 +105,15 @@ def _subset(bags: Sequence[Path], shapes: Sequence[str], every: int) -> list[Pat
     for s in shapes:
         out += [b for b in bags if _shape(b) == s][::every]
     return out
+
+
+def split_bags(bags: Sequence[Path], split: str, every: int) -> tuple[list[Path], list[Path]]:
+    """(training, held-out) bags of `split` (see `SPLITS`), every `every`-th push kept."""
+    fit_shapes, held_shapes = SPLITS[split]
+    if fit_shapes == held_shapes:
+        pushes = _subset(bags, fit_shapes, every)
+        return pushes[::2], pushes[1::2]
+    return _subset(bags, fit_shapes, every), _subset(bags, held_shapes, every)
 
 
 def _noise(factor: float) -> tuple[float, ...]:
@@ -180,11 +196,12 @@ def run_study(cfg: DiscrepancyStudy, say: Callable[[str], None]) -> dict[str, An
     summary: dict[str, Any] = {"settings": _settings(cfg), "splits": {}}
     for split in cfg.splits:
         fit_shapes, held_shapes = SPLITS[split]
-        say(f"split {split}: fit on {'+'.join(fit_shapes)}, held out {'+'.join(held_shapes)}")
-        sel = {
-            m: (_subset(b, fit_shapes, cfg.every), _subset(b, held_shapes, cfg.every))
-            for m, b in bags.items()
-        }
+        alternate = " (alternate pushes)" if fit_shapes == held_shapes else ""
+        say(
+            f"split {split}: fit on {'+'.join(fit_shapes)}, held out {'+'.join(held_shapes)}"
+            + alternate
+        )
+        sel = {m: split_bags(b, split, cfg.every) for m, b in bags.items()}
         runs = {
             m: ([load_run(p) for p in t], [load_run(p) for p in h]) for m, (t, h) in sel.items()
         }
@@ -281,6 +298,8 @@ def markdown(summary: dict[str, Any]) -> str:
     for name, b in summary["splits"].items():
         fit, held = "+".join(b["fit"]), "+".join(b["heldout"])
         label = f"{name}: {fit} ({b['n_fit']}) -> {held} ({b['n_heldout']})"
+        if fit == held:
+            label += ", alternate pushes"
         for m, r in b["models"].items():
             f = r["noise_factor"]
             lines.append(

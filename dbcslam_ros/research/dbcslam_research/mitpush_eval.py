@@ -73,6 +73,7 @@ __all__ = [
     "markdown_table",
     "resolve_data",
     "run_eval",
+    "select_shapes",
     "summarise",
 ]
 
@@ -120,6 +121,7 @@ class EvalOptions:
     push_model: the scenarios' ``surface.model`` (None: the importer's default,
     :data:`dbcslam_ros.importers.mitpush.DEFAULT_PUSH_MODEL`). every: evaluate every N-th push file
     (sorted by name; the alignment is still fitted on every file of the shape's directory).
+    shapes: evaluate only the pushes of these shapes (None: all).
     """
 
     data: Path = DEFAULT_DATA
@@ -138,6 +140,28 @@ class EvalOptions:
     reuse: bool = False
     push_model: str | None = None
     every: int = 1
+    shapes: tuple[str, ...] | None = None
+
+
+def select_shapes(files: Sequence[Path], shapes: Sequence[str] | None) -> list[Path]:
+    """The push files of `shapes` (all when None), in the given order.
+
+    Raises:
+        UsageError: a shape without any push file among `files`.
+    """
+    from dbcslam_ros.importers.mitpush import parse_push_name
+
+    if shapes is None:
+        return list(files)
+    found = {f: parse_push_name(f).shape for f in files}
+    missing = sorted(set(shapes) - set(found.values()))
+    if missing:
+        msg = (
+            f"no push files of shape(s) {missing}; shapes in the data: "
+            f"{sorted(set(found.values()))}"
+        )
+        raise UsageError(msg)
+    return [f for f in files if found[f] in shapes]
 
 
 def resolve_data(data: str | Path) -> list[Path]:
@@ -618,7 +642,7 @@ def run_eval(opts: EvalOptions, *, command: str = "") -> dict[str, Any]:
             f"{opts.every}"
         )
         raise UsageError(msg)
-    files = resolve_data(opts.data)[:: opts.every]
+    files = select_shapes(resolve_data(opts.data), opts.shapes)[:: opts.every]
     started = time.perf_counter()
     with _work_dir(opts.work) as work:
         bags_dir = work / "bags"
@@ -838,6 +862,13 @@ def _parser() -> argparse.ArgumentParser:
         help="push model of the imported scenarios (surface.model; default: the importer's)",
     )
     parser.add_argument(
+        "--shapes",
+        nargs="+",
+        default=None,
+        metavar="SHAPE",
+        help="evaluate only the pushes of these shapes (default: all)",
+    )
+    parser.add_argument(
         "-p",
         "--param",
         action="append",
@@ -876,6 +907,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         reuse=args.reuse,
         push_model=args.push_model,
         every=args.every,
+        shapes=None if args.shapes is None else tuple(args.shapes),
         pusher_candidates=None
         if args.pusher_candidates is None
         else tuple(args.pusher_candidates),
