@@ -38,7 +38,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SPLITS", "DiscrepancyStudy", "main", "run_study", "split_bags"]
+from dbcslam_research.cli import doc_parser
+
+__all__ = ["SPLITS", "DiscrepancyStudy", "add_data_args", "main", "run_study", "split_bags"]
 
 DEFAULT_DATA = Path("../shared/data/mit-push")
 SPLITS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -327,17 +329,17 @@ def markdown(summary: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m dbcslam_research.mitpush_discrepancy",
-        description=(__doc__ or "").split("\n\n")[0],
-        epilog=(__doc__ or "").split("\n\n", 1)[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+def add_data_args(p: argparse.ArgumentParser) -> None:
+    """The arguments of the MIT push studies: dataset root, --out, --work, --particles."""
     p.add_argument("data", nargs="?", type=Path, default=DEFAULT_DATA, help="dataset root")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--work", type=Path, default=None, help="folder for the bags (default temp)")
     p.add_argument("--particles", type=int, default=100, help="scoring particles (100)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = doc_parser("dbcslam_research.mitpush_discrepancy", __doc__)
+    add_data_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="filter seeds")
     p.add_argument(
         "--noise-factors",

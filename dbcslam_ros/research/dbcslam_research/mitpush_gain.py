@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from dbcslam_research.cli import doc_parser
+
 __all__ = ["compare", "load_eval", "main", "markdown"]
 
 
@@ -150,12 +152,7 @@ def markdown(pairs: Sequence[dict[str, Any]], title: str) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m dbcslam_research.mitpush_gain",
-        description=(__doc__ or "").split("\n\n")[0],
-        epilog=(__doc__ or "").split("\n\n", 1)[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = doc_parser("dbcslam_research.mitpush_gain", __doc__)
     p.add_argument("--nominal", type=Path, nargs="+", required=True, help="mitpush_eval runs")
     p.add_argument("--extended", type=Path, nargs="+", required=True, help="the same, extended")
     p.add_argument(

@@ -38,7 +38,8 @@ from typing import Any
 from dbcslam_core.discrepancy import Run
 from dbcslam_core.discrepancy.effects import Hypothesis
 from dbcslam_core.discrepancy.scoring import ScoreConfig, Scorer
-from dbcslam_research.mitpush_discrepancy import DEFAULT_DATA, import_bags
+from dbcslam_research.cli import doc_parser
+from dbcslam_research.mitpush_discrepancy import add_data_args, import_bags
 
 __all__ = ["VARIANTS", "Variant", "main", "score_variants", "with_candidates"]
 
@@ -155,16 +156,8 @@ def markdown(summary: dict[str, Any], settings: dict[str, Any]) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m dbcslam_research.mitpush_pressure",
-        description=(__doc__ or "").split("\n\n")[0],
-        epilog=(__doc__ or "").split("\n\n", 1)[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("data", nargs="?", type=Path, default=DEFAULT_DATA, help="dataset root")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--work", type=Path, default=None, help="folder for the bags (default temp)")
-    p.add_argument("--particles", type=int, default=100, help="scoring particles (100)")
+    p = doc_parser("dbcslam_research.mitpush_pressure", __doc__)
+    add_data_args(p)
     p.add_argument("--seed", type=int, default=0, help="scoring filter seed (0)")
     return p
 
