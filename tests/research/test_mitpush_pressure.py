@@ -19,6 +19,7 @@ from dbcslam_research.mitpush_pressure import (
     with_candidates,
 )
 
+NAME = "motion_surface=abs_shape=disc_a=0_v=80_i=0.000_s=0.500_t=1.000"
 DISC = [
     (0.0525 * math.cos(a), 0.0525 * math.sin(a))
     for a in np.linspace(0.0, -2.0 * math.pi, 24, endpoint=False)  # clockwise
@@ -39,7 +40,7 @@ def _run(centre_fraction: float, seed: int = 0) -> Run:
             ModelExtension.make("support_concentration", centre_fraction=centre_fraction),
         ),
     )
-    return Run("shape=disc_push", tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
+    return Run(NAME, tr.scenario, tr.t, tr.obs, tr.u, tr.env_obs)
 
 
 def test_with_candidates_replaces_only_the_named_pair() -> None:

@@ -86,7 +86,7 @@ VARIANTS: tuple[Variant, ...] = (
 
 def with_candidates(run: Run, **pairs: tuple[float, ...] | None) -> Run:
     """`run` with the friction candidates of the named pairs replaced (uniform prior); a
-    pair given as None keeps its candidates. Unknown pair names raise `ModelError`."""
+    pair given as None keeps its candidates. Unknown pair names raise `ScenarioError`."""
     fr = run.scenario.friction
     cands, prior = list(fr.candidates), list(fr.prior)
     for name, values in pairs.items():
@@ -115,19 +115,20 @@ def score_variants(
     return out
 
 
-def _shape(name: str) -> str:
-    return name.split("shape=")[1].split("_", maxsplit=1)[0] if "shape=" in name else name
-
-
 def summarise(names: Sequence[str], scores: dict[str, list[float]]) -> dict[str, Any]:
-    """Per variant: evidence relative to the first variant, in total and per shape."""
+    """Per variant: evidence relative to the first variant, in total and per shape (names:
+    the runs' bags, named after their MIT push files)."""
+    from dbcslam_ros.importers.mitpush import parse_push_name
+
+    shape_of = {n: parse_push_name(n).shape for n in names}
     ref = next(iter(scores.values()))
-    shapes = sorted({_shape(n) for n in names})
+    shapes = sorted({shape_of[n] for n in names})
     table: dict[str, Any] = {}
     for v, vals in scores.items():
         delta = [a - b for a, b in zip(vals, ref, strict=True)]
         per = {
-            s: sum(d for d, n in zip(delta, names, strict=True) if _shape(n) == s) for s in shapes
+            s: sum(d for d, n in zip(delta, names, strict=True) if shape_of[n] == s)
+            for s in shapes
         }
         table[v] = {
             "total": round(sum(delta), 1),
