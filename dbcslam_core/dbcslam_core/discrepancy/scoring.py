@@ -202,11 +202,11 @@ class Scorer:
             self._pool = None
 
     def _key(self, hyp: Hypothesis, run: Run, seed: int | None) -> tuple[Hypothesis, int, int]:
-        self._runs.setdefault(id(run), run)
         return (hyp, id(run), self.cfg.seed if seed is None else seed)
 
     def _store(self, job: Job, tr: RunTrace, cpu: float) -> None:
         hyp, run, s = job
+        self._runs[id(run)] = run
         self._cache[self._key(hyp, run, s)] = tr
         self.evaluations += 1
         self.cpu_seconds += cpu
