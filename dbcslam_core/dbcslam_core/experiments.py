@@ -52,6 +52,7 @@ from .metrics import (
 from .observation import PoseObservation
 from .parameters import FrictionMapView
 from .rbpf import DbcSlamFilter, FilterConfig, FilterInput
+from .scenario import Scenario
 from .synthetic import EDGE_ROUGH, Trajectory, edge_mu_field, edge_trajectory, gripper_trajectory
 
 __all__ = [
@@ -65,6 +66,7 @@ __all__ = [
     "RunTrace",
     "Target",
     "TargetCheck",
+    "black_box_config",
     "edge_targets",
     "evaluate_targets",
     "experiment_tasks",
@@ -484,6 +486,24 @@ def run_fixed_friction(
     )
 
 
+def black_box_config(
+    scenario: Scenario, *, particles: int, solver: str = "pgs", active_set: bool = False
+) -> NCPFilterConfig:
+    """The black-box filter's configuration of `run_black_box`: its own tuned velocity
+    process noise (``NCPFilterConfig.default_noise``) and the position noise (m, m[, rad]),
+    initial velocity spread and warm-up of the DBC-SLAM preset of the scenario's kind."""
+    base = FilterConfig.preset(scenario.kind)
+    return NCPFilterConfig(
+        particles=particles,
+        solver=solver,
+        position_noise=tuple(base.position_noise[: scenario.nq]),
+        init_velocity_std=base.init_velocity_std,
+        warmup_steps=base.warmup_steps,
+        warmup_boost=base.warmup_boost,
+        active_set=active_set,
+    )
+
+
 def run_black_box(
     tr: Trajectory,
     *,
@@ -502,16 +522,8 @@ def run_black_box(
     (method ``blackbox_lemke_as``).
     """
     if config is None:
-        base = FilterConfig.preset(tr.scenario.kind)
-        nq = tr.scenario.nq
-        config = NCPFilterConfig(
-            particles=particles,
-            solver=solver,
-            position_noise=tuple(base.position_noise[:nq]),
-            init_velocity_std=base.init_velocity_std,
-            warmup_steps=base.warmup_steps,
-            warmup_boost=base.warmup_boost,
-            active_set=active_set,
+        config = black_box_config(
+            tr.scenario, particles=particles, solver=solver, active_set=active_set
         )
     filt = BlackBoxNCPFilter(tr.scenario, config, np.random.default_rng([seed, 3]))
     return run_filter(

@@ -94,3 +94,31 @@ def test_replay_table_says_whether_the_replay_kept_within_the_data(
     assert cells[2] == "4.00"
     assert cells[4] == verdict
     assert cells[6] == "jaws 1.000"
+
+
+def _profile_row(scenario: str, particles: int, compiled: float, step: float, pgs: float) -> Any:
+    from dbcslam_research.step_profile import PHASES
+
+    dbc = dict.fromkeys((name for name, _ in PHASES), 0.0)
+    dbc.update({"_compiled_phases": compiled, "step": step, "other": step - compiled})
+    return {
+        "scenario": scenario,
+        "particles": particles,
+        "dbcslam": dbc,
+        "blackbox_pgs": {"_simulate": 0.8 * pgs, "step": pgs, "other": 0.2 * pgs},
+    }
+
+
+def test_reading_says_where_the_time_goes_from_the_profile() -> None:
+    profile = [
+        _profile_row("edge", 100, 0.2, 0.5, 0.25),
+        _profile_row("edge", 10000, 12.0, 16.0, 3.5),
+    ]
+    result = {"scaling": [_row("edge", 100, 0.5, 10.0, 0.25)], "accuracy": [], "meta": META}
+    result["profile"] = profile
+    text = "\n".join(reading_lines(result))
+    assert "take 40%-75% of DBC-SLAM's step" in text
+    assert "they alone take 12.00 ms against the PGS box's whole step 3.50 ms" in text
+    assert "0.30 ms at 100 particles" in text
+    md = render_markdown(result, "python -m dbcslam_research.bench")
+    assert "## Where the time goes" in md and "| edge | 10000 | 16.000 |" in md

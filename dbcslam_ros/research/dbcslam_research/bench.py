@@ -61,41 +61,21 @@ from dbcslam_core.experiments import (
 )
 from dbcslam_core.row_pool import resolve_threads
 from dbcslam_core.synthetic import Trajectory
+from dbcslam_research.cli import ints_argument
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
+from dbcslam_research.slices import contact_window, slice_trajectory
+from dbcslam_research.step_profile import profile_steps, render_profile
 
-__all__ = ["contact_window", "main", "reading_lines", "slice_trajectory", "time_replay"]
+__all__ = [
+    "contact_window",
+    "ints_argument",
+    "main",
+    "reading_lines",
+    "slice_trajectory",
+    "time_replay",
+]
 
 DEFAULT_OUT = Path("dbcslam_ros/research/results")
-
-
-def slice_trajectory(tr: Trajectory, start: int, stop: int) -> Trajectory:
-    """Samples [start, stop) of a trajectory (the filter initialises at `start`)."""
-    return Trajectory(
-        tr.scenario,
-        tr.t[start:stop],
-        tr.q[start:stop],
-        tr.v[start:stop],
-        tr.u[start:stop],
-        tr.env[start:stop],
-        tr.modes[start:stop],
-        tr.ln[start:stop],
-        tr.lt[start:stop],
-        tr.mu[start:stop],
-        tr.mu_pair,
-        tr.obs[start:stop],
-        tr.env_obs[start:stop],
-    )
-
-
-def contact_window(tr: Trajectory, length: int) -> int:
-    """Start index of the `length`-sample window with the most true (step, contact) contacts."""
-    n = tr.n_steps
-    if length >= n:
-        return 0
-    c = (tr.modes != 0).sum(axis=1).astype(np.float64)
-    cs = np.concatenate([[0.0], np.cumsum(c)])
-    sums = cs[length:] - cs[:-length]
-    return int(np.argmax(sums))
 
 
 def _ms(trace: RunTrace, warmup: int) -> float:
@@ -347,6 +327,16 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
                 f"{_fmt(r.get('final_true_friction_posterior', math.nan), 3)} | "
                 f"{_fmt(r['step_time_ms'])} |"
             )
+    if result.get("profile"):
+        lines += [
+            "",
+            "## Where the time goes (one thread, ms per step)",
+            "",
+            "Command: `python -m dbcslam_research.step_profile` (the same slices; wall time "
+            "per phase of `DbcSlamFilter.step`, mean after the warm-up steps).",
+            "",
+            *render_profile(result["profile"]),
+        ]
     if result.get("replay"):
         lines += _replay_lines(result["replay"])
     lines.append("")
@@ -398,26 +388,41 @@ def reading_lines(result: dict[str, Any], target: float = 10.0) -> list[str]:
             "enumerating contact-mode and friction hypotheses; compare its accuracy below)."
         )
         lines.append("- " + " ".join(parts))
+    lines += _profile_reading(result.get("profile") or [])
     lines.append(
-        "- Per-step time of DBC-SLAM has a fixed part (about 1 ms of numpy and Python per "
-        "step: kinematics, weights, resampling, the estimate) that dominates at 100 particles; "
-        "the compiled per-row kernels run on the threads of the first DBC-SLAM column from "
+        "- The compiled per-row kernels run on the threads of the first DBC-SLAM column from "
         "~256 live entries per thread (the 1-thread column is the same filter on one thread); "
         "the black boxes' Lemke cost is per particle."
     )
     return lines
 
 
-def _ints(text: str) -> list[int]:
-    try:
-        vals = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError as err:
-        msg = f"expected comma-separated integers, got {text!r}"
-        raise argparse.ArgumentTypeError(msg) from err
-    if not vals or min(vals) < 1:
-        msg = f"expected positive integers, got {text!r}"
-        raise argparse.ArgumentTypeError(msg)
-    return vals
+def _profile_reading(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Where DBC-SLAM's step goes against the PGS box's, per scenario, from the profile."""
+    lines = []
+    by_scen: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        by_scen.setdefault(r["scenario"], []).append(r)
+    for scen, rs in by_scen.items():
+        lo, hi = rs[0], rs[-1]
+        share = [r["dbcslam"]["_compiled_phases"] / r["dbcslam"]["step"] for r in rs]
+        rest = lo["dbcslam"]["step"] - lo["dbcslam"]["_compiled_phases"]
+        lines.append(
+            f"- *{scen}*, where the time goes (one thread, table below): the compiled "
+            f"hypothesis phases (dynamics, proposal, posterior of every live mode x friction "
+            f"hypothesis) take {min(share):.0%}-{max(share):.0%} of DBC-SLAM's step; at "
+            f"{hi['particles']} particles they alone take "
+            f"{hi['dbcslam']['_compiled_phases']:.2f} ms against the PGS box's whole step "
+            f"{hi['blackbox_pgs']['step']:.2f} ms. The rest of the step (numpy and Python) is "
+            f"{rest:.2f} ms at {lo['particles']} particles (the PGS box's whole step "
+            f"{lo['blackbox_pgs']['step']:.2f} ms)."
+        )
+    return lines
+
+
+def _counts_or_none(text: str) -> list[int]:
+    """argparse type: comma-separated positive integers, or 0 for none."""
+    return [] if text.strip() == "0" else ints_argument(text)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -429,7 +434,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output dir ({DEFAULT_OUT})")
     p.add_argument(
-        "--particles", type=_ints, default=[100, 300, 1000, 3000, 10000], help="particle counts"
+        "--particles",
+        type=ints_argument,
+        default=[100, 300, 1000, 3000, 10000],
+        help="particle counts",
     )
     p.add_argument("--steps", type=int, default=40, help="samples in the timed slice (40)")
     p.add_argument("--warmup", type=int, default=5, help="warm-up steps not timed (5)")
@@ -460,6 +468,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument(
         "--replay-runs", type=int, default=3, help="replay processes timed (0 = skip; 3)"
+    )
+    p.add_argument(
+        "--profile-particles",
+        type=_counts_or_none,
+        default=[100, 1000, 10000],
+        help="particle counts of the per-phase profile (python -m "
+        "dbcslam_research.step_profile); 0 = skip (100,1000,10000)",
     )
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -498,6 +513,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         say=say,
         repeat=args.repeat,
     )
+    if args.profile_particles:
+        say("where the time goes (one thread):")
+        result["profile"] = profile_steps(
+            scenarios, args.profile_particles, steps=args.steps, warmup=args.warmup, say=say
+        )
     if args.replay_runs > 0:
         result["replay"] = time_replay(args.replay, args.replay_particles, args.replay_runs, say)
     result["meta"] = {

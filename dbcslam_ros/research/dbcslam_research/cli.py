@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["doc_parser"]
+__all__ = ["doc_parser", "ints_argument"]
 
 
 def doc_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
@@ -17,3 +17,16 @@ def doc_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
         epilog=rest or None,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+
+
+def ints_argument(text: str) -> list[int]:
+    """argparse type: comma-separated positive integers (e.g. particle counts)."""
+    try:
+        vals = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError as err:
+        msg = f"expected comma-separated integers, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from err
+    if not vals or min(vals) < 1:
+        msg = f"expected positive integers, got {text!r}"
+        raise argparse.ArgumentTypeError(msg)
+    return vals
