@@ -118,7 +118,7 @@ def test_reading_says_where_the_time_goes_from_the_profile() -> None:
     result["profile"] = profile
     text = "\n".join(reading_lines(result))
     assert "take 40%-75% of DBC-SLAM's step" in text
-    assert "they alone take 12.00 ms against the PGS box's whole step 3.50 ms" in text
-    assert "0.30 ms at 100 particles" in text
+    assert "(12.00 of 16.00 ms at 10000 particles, where the PGS box's whole step takes" in text
+    assert "takes 0.30 ms at 100 particles (the PGS box's whole step 0.25 ms)" in text
     md = render_markdown(result, "python -m dbcslam_research.bench")
     assert "## Where the time goes" in md and "| edge | 10000 | 16.000 |" in md

@@ -68,6 +68,7 @@ def test_bench_smoke(tmp_path: Path) -> None:
 
     argv = ["--out", str(tmp_path), "--particles", "4,6", "--steps", "6", "--warmup", "1"]
     argv += ["--lemke-max", "4", "--accuracy-particles", "0", "--scenarios", "edge", "--quiet"]
+    argv += ["--profile-particles", "5"]
     assert bench_main(argv) == 0
     data = json.loads((tmp_path / "bench.json").read_text())
     rows = data["scaling"]
@@ -75,7 +76,53 @@ def test_bench_smoke(tmp_path: Path) -> None:
     assert rows[0]["blackbox_lemke_ms"] is not None
     assert rows[1]["blackbox_lemke_ms"] is None  # above --lemke-max: not run
     assert all(r["dbcslam_ms"] > 0 and r["dbcslam_1thread_ms"] > 0 for r in rows)
-    assert "| edge | 4 |" in (tmp_path / "bench.md").read_text()
+    md = (tmp_path / "bench.md").read_text()
+    assert "| edge | 4 |" in md
+    assert [(r["scenario"], r["particles"]) for r in data["profile"]] == [("edge", 5)]
+    assert "## Where the time goes" in md and "| edge | 5 |" in md
+
+
+def test_set_overrides_reach_the_filter(tmp_path: Path) -> None:
+    argv = ["--out", str(tmp_path), "--seeds", "1", "--particles", "8", "--steps", "25"]
+    argv += ["--scenarios", "edge", "--no-fixed", "--no-figures", "--quiet"]
+    assert main([*argv, "--set", "max_hypotheses=1"]) == 0
+    data = json.loads((tmp_path / "experiments.json").read_text())
+    assert data["config"]["filter_overrides"] == {"edge": {"max_hypotheses": 1}}
+    (run,) = data["runs"]
+    assert run["metrics"]["live_hypotheses"] == pytest.approx(1.0)  # the cap took effect
+
+
+@pytest.mark.parametrize(
+    ("item", "expected"),
+    [
+        ("prune_threshold=0.01", {"prune_threshold": 0.01}),
+        ("process_noise=(0.02, 0.02, 0.5)", {"process_noise": (0.02, 0.02, 0.5)}),
+        ("resampler=residual", {"resampler": "residual"}),
+        ("smoothed_joint_velocity=False", {"smoothed_joint_velocity": False}),
+    ],
+)
+def test_parse_overrides(item: str, expected: dict[str, object]) -> None:
+    from dbcslam_research.experiments import parse_overrides
+
+    assert parse_overrides([item], ["edge", "gripper"]) == expected
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("prune=0.01", "KEY one of"),
+        ("prune_threshold", "KEY one of"),
+        ("particles=0", "on the edge preset: particles"),
+        ("resampler=nope", "nope"),
+        ("friction_bank=True", "parameter_model"),
+    ],
+)
+def test_parse_overrides_names_the_bad_item(item: str, message: str) -> None:
+    from dbcslam_research.experiments import parse_overrides
+
+    with pytest.raises(ValueError, match=message) as exc:
+        parse_overrides([item], ["edge"])
+    assert repr(item) in str(exc.value)
 
 
 def test_shared_report_helpers(tmp_path: Path) -> None:

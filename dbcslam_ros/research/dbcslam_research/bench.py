@@ -410,11 +410,11 @@ def _profile_reading(rows: Sequence[dict[str, Any]]) -> list[str]:
         lines.append(
             f"- *{scen}*, where the time goes (one thread, table below): the compiled "
             f"hypothesis phases (dynamics, proposal, posterior of every live mode x friction "
-            f"hypothesis) take {min(share):.0%}-{max(share):.0%} of DBC-SLAM's step; at "
-            f"{hi['particles']} particles they alone take "
-            f"{hi['dbcslam']['_compiled_phases']:.2f} ms against the PGS box's whole step "
-            f"{hi['blackbox_pgs']['step']:.2f} ms. The rest of the step (numpy and Python) is "
-            f"{rest:.2f} ms at {lo['particles']} particles (the PGS box's whole step "
+            f"hypothesis) take {min(share):.0%}-{max(share):.0%} of DBC-SLAM's step "
+            f"({hi['dbcslam']['_compiled_phases']:.2f} of {hi['dbcslam']['step']:.2f} ms at "
+            f"{hi['particles']} particles, where the PGS box's whole step takes "
+            f"{hi['blackbox_pgs']['step']:.2f} ms); the rest of the step (numpy and Python) "
+            f"takes {rest:.2f} ms at {lo['particles']} particles (the PGS box's whole step "
             f"{lo['blackbox_pgs']['step']:.2f} ms)."
         )
     return lines

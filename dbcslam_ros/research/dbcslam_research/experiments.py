@@ -10,7 +10,8 @@ fixed-friction baseline), then writes into ``--out`` (default ``dbcslam_ros/rese
   (the seed with the median DBC-SLAM position RMSE).
 
 Usage: ``python -m dbcslam_research.experiments [--out DIR] [--seeds N] [--particles N]
-[--scenarios edge,gripper] [--workers W] [--steps N] [--no-fixed] [--no-figures] [--quiet]``.
+[--scenarios edge,gripper] [--workers W] [--steps N] [--set KEY=VALUE ...] [--no-fixed]
+[--no-figures] [--quiet]``.
 
 The formatting, file and CLI helpers here (``targets_table``, ``medians_tables``,
 ``report_sections``, ``report_payload``, ``write_json``, ``save_figures``,
@@ -22,6 +23,7 @@ Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import datetime as dt
 import json
@@ -35,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from dbcslam_core.errors import ModelError
 from dbcslam_core.experiments import (
     DBCSLAM,
     SCENARIOS,
@@ -49,6 +52,7 @@ from dbcslam_core.experiments import (
     summarize,
 )
 from dbcslam_core.metrics import position_rmse
+from dbcslam_core.rbpf import FilterConfig
 
 __all__ = [
     "DEFAULT_OUT",
@@ -61,6 +65,7 @@ __all__ = [
     "json_safe",
     "main",
     "medians_tables",
+    "parse_overrides",
     "parse_scenarios",
     "per_seed_table",
     "print_checks",
@@ -323,6 +328,7 @@ def write_outputs(
         "scenarios": list(cfg.scenarios),
         "n_steps": cfg.n_steps,
         "fixed_friction": cfg.fixed_friction,
+        "filter_overrides": {kind: dict(o) for kind, o in cfg.filter_overrides.items() if o},
         "workers": cfg.workers,
     }
     payload = report_payload(command, elapsed, config, checks, results.records)
@@ -401,7 +407,42 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--steps", type=int, default=None, help="truncate trajectories to N samples (full)"
     )
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a FilterConfig field on top of each scenario's preset, for DBC-SLAM and the "
+        "fixed-friction baseline (repeatable; VALUE a Python literal: 0.01, 64, True, "
+        "(0.01, 0.01, 0.5)); e.g. --set prune_threshold=0.01",
+    )
     return p
+
+
+def parse_overrides(items: Sequence[str], scenarios: Sequence[str]) -> dict[str, Any]:
+    """``--set KEY=VALUE`` items -> `FilterConfig` overrides (VALUE a Python literal, else
+    the text). Raises ValueError naming the item when KEY is not a field of `FilterConfig`,
+    and naming the scenario when the overrides together are not valid on its preset."""
+    fields = sorted(f.name for f in dataclasses.fields(FilterConfig))
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = (part.strip() for part in item.partition("="))
+        if not sep or key not in fields:
+            msg = f"--set {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}"
+            raise ValueError(msg)
+        try:
+            out[key] = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            out[key] = text
+    for kind in scenarios if out else ():
+        try:
+            FilterConfig.preset(kind, **out)
+        except (ModelError, TypeError, ValueError) as err:
+            given = " ".join(f"--set {item!r}" for item in items)
+            msg = f"{given} on the {kind} preset: {err}"
+            raise ValueError(msg) from err
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -416,6 +457,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.steps is not None and args.steps < 3:
             msg = f"--steps must be >= 3, got {args.steps}"
             raise ValueError(msg)
+        overrides = parse_overrides(args.overrides, scenarios)
     except ValueError as err:
         parser.print_usage(sys.stderr)
         print(f"error: {err}", file=sys.stderr)
@@ -426,6 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenarios=scenarios,
         n_steps=args.steps,
         fixed_friction=not args.no_fixed,
+        filter_overrides=dict.fromkeys(scenarios, overrides),
         workers=args.workers,
     )
     command = command_line("python -m dbcslam_research.experiments", argv)
