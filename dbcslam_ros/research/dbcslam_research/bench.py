@@ -66,14 +66,7 @@ from dbcslam_research.experiments import command_line, progress_printer, utc_now
 from dbcslam_research.slices import contact_window, slice_trajectory
 from dbcslam_research.step_profile import profile_steps, render_profile
 
-__all__ = [
-    "contact_window",
-    "ints_argument",
-    "main",
-    "reading_lines",
-    "slice_trajectory",
-    "time_replay",
-]
+__all__ = ["main", "reading_lines", "render_markdown", "time_replay"]
 
 DEFAULT_OUT = Path("dbcslam_ros/research/results")
 

@@ -118,9 +118,12 @@ def _phase_ms(
     return out
 
 
-def _factory(cls: Callable[..., FilterLike], tr: Trajectory, cfg: Any) -> Callable[[], FilterLike]:
-    """A maker of fresh filters cls(scenario, cfg, rng) with the same seed each time."""
-    return lambda: cls(tr.scenario, cfg, np.random.default_rng([0, 1]))
+def _factory(
+    cls: Callable[..., FilterLike], tr: Trajectory, cfg: Any, stream: int
+) -> Callable[[], FilterLike]:
+    """A maker of fresh filters cls(scenario, cfg, rng) on the random stream [0, stream] each
+    time (that of `run_dbcslam`: 1, `run_black_box`: 3, seed 0: the bench's runs)."""
+    return lambda: cls(tr.scenario, cfg, np.random.default_rng([0, stream]))
 
 
 def profile_steps(
@@ -140,10 +143,10 @@ def profile_steps(
         start = contact_window(full, steps)
         part = slice_trajectory(full, start, start + steps)
         for p in particles:
-            dbc = _factory(DbcSlamFilter, part, FilterConfig.preset(scen, particles=p, threads=1))
-            pgs = _factory(
-                BlackBoxNCPFilter, part, black_box_config(part.scenario, particles=p, solver="pgs")
-            )
+            dbc_cfg = FilterConfig.preset(scen, particles=p, threads=1)
+            pgs_cfg = black_box_config(part.scenario, particles=p, solver="pgs")
+            dbc = _factory(DbcSlamFilter, part, dbc_cfg, stream=1)
+            pgs = _factory(BlackBoxNCPFilter, part, pgs_cfg, stream=3)
             ms_dbc = _phase_ms(dbc, part, PHASES, warmup)
             ms_pgs = _phase_ms(pgs, part, BLACK_BOX_PHASES, warmup)
             say(
