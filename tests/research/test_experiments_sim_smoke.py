@@ -107,3 +107,22 @@ def test_push_force_reading_matches_truth_in_contact() -> None:
     expected = params.mu_surface * tr.scenario.body.mass * tr.scenario.gravity
     assert math.isclose(float(np.median(np.abs(force[in_contact, 1]))), expected, rel_tol=0.1)
     assert float(np.max(np.abs(force[~in_contact]))) < 6 * params.noise.force
+
+
+def test_set_overrides_reach_every_filter_run(tmp_path: Path) -> None:
+    argv = ["--out", str(tmp_path), "--seeds", "1", "--particles", "8", "--duration", "0.5"]
+    argv += ["--scenarios", "edge,push", "--workers", "1", "--no-figures", "--quiet"]
+    assert main([*argv, "--set", "max_hypotheses=1"]) == 0
+    data = json.loads((tmp_path / "experiments_sim.json").read_text())
+    assert data["config"]["filter_overrides"] == {"max_hypotheses": 1}
+    methods = {r["method"] for r in data["runs"]}
+    assert {"dbcslam", "fixed_mu_0.3", "dbcslam_no_force"} <= methods  # every kind of run
+    for r in data["runs"]:  # the cap took effect in each
+        assert r["metrics"]["live_hypotheses"] == pytest.approx(1.0), r["method"]
+    assert '"max_hypotheses": 1' in (tmp_path / "experiments_sim.md").read_text()
+
+
+def test_set_with_a_bad_key_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--out", str(tmp_path), "--scenarios", "gripper", "--set", "nope=1", "--quiet"]
+    assert main(argv) == 2
+    assert "--set 'nope=1'" in capsys.readouterr().err

@@ -59,6 +59,7 @@ __all__ = [
     "PER_SEED_KEYS",
     "TABLE_METRICS",
     "add_common_arguments",
+    "add_set_argument",
     "command_line",
     "figure_trace",
     "fmt_value",
@@ -407,17 +408,22 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--steps", type=int, default=None, help="truncate trajectories to N samples (full)"
     )
+    add_set_argument(p)
+    return p
+
+
+def add_set_argument(p: argparse.ArgumentParser) -> None:
+    """``--set KEY=VALUE`` (repeatable) into ``args.overrides``; see `parse_overrides`."""
     p.add_argument(
         "--set",
         dest="overrides",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="a FilterConfig field on top of each scenario's preset, for DBC-SLAM and the "
-        "fixed-friction baseline (repeatable; VALUE a Python literal: 0.01, 64, True, "
-        "(0.01, 0.01, 0.5)); e.g. --set prune_threshold=0.01",
+        help="a FilterConfig field on top of each scenario's preset, for every filter run "
+        "(repeatable; VALUE a Python literal: 0.01, 64, True, (0.01, 0.01, 0.5)); e.g. "
+        "--set prune_threshold=0.01",
     )
-    return p
 
 
 def parse_overrides(items: Sequence[str], scenarios: Sequence[str]) -> dict[str, Any]:

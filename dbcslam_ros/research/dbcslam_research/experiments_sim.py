@@ -74,6 +74,8 @@ from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_research.experiments import (
     TABLE_METRICS,
+    add_set_argument,
+    parse_overrides,
     print_checks,
     progress_printer,
     report_sections,
@@ -173,7 +175,9 @@ class SimExperimentConfig:
     ``SIM_SCENARIOS``; duration: simulated seconds (None = the simulator defaults: edge 5.5,
     gripper 4.0, push 2.5); fixed_friction: also run the edge fixed-friction baseline;
     no_force_baseline: also run DBC-SLAM on push without the pusher force reading;
-    workers: parallel processes; sim_overrides: simulator parameter overrides per scenario.
+    workers: parallel processes; sim_overrides: simulator parameter overrides per scenario;
+    filter_overrides: `FilterConfig` fields on top of each scenario's preset, for every filter
+    run (DBC-SLAM, without force, fixed friction).
     """
 
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
@@ -186,6 +190,7 @@ class SimExperimentConfig:
     sim_overrides: Mapping[str, Mapping[str, Any]] = field(
         default_factory=lambda: {k: dict(v) for k, v in SIM_OVERRIDES.items()}
     )
+    filter_overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         bad = [s for s in self.scenarios if s not in SIM_SCENARIOS]
@@ -311,10 +316,12 @@ def run_task(
     duration: float | None = None,
     overrides: Mapping[str, Any] | None = None,
     sim: str | None = None,
+    filter_overrides: Mapping[str, Any] | None = None,
 ) -> tuple[RunRecord, RunTrace, float]:
     """Simulate, filter and score one (scenario, seed, method); returns record, trace, wall s.
 
-    sim: the simulator scenario (None = `scenario`); overrides: simulator parameters.
+    sim: the simulator scenario (None = `scenario`); overrides: simulator parameters;
+    filter_overrides: `FilterConfig` fields on top of the scenario's preset.
 
     method: ``dbcslam`` (on push with the pusher force reading, std = the preset's
     ``force_noise``), ``dbcslam_no_force`` (kinematics only) or ``fixed:<candidate index>`` (edge
@@ -323,17 +330,18 @@ def run_task(
     t0 = time.perf_counter()
     sim_name = scenario if sim is None else sim
     tr, params, force = sim_trajectory(sim_name, seed, duration=duration, overrides=overrides)
+    fo = dict(filter_overrides or {})
     if method == DBCSLAM and sim_name == "push":
-        cfg = FilterConfig.preset("push", particles=particles)
+        cfg = FilterConfig.preset("push", particles=particles, **fo)
         filt = DbcSlamFilter(tr.scenario, cfg, np.random.default_rng([seed, 1]))
         fed = ForceFedFilter(filt, force)
         trace = run_filter(fed, tr, method=DBCSLAM, seed=seed, particles=particles)
     elif method in (DBCSLAM, NO_FORCE):
-        trace = run_dbcslam(tr, seed=seed, particles=particles)
+        trace = run_dbcslam(tr, seed=seed, particles=particles, overrides=fo)
         trace = dataclasses.replace(trace, method=method)
     elif method.startswith("fixed:"):
         cand = int(method.split(":", 1)[1])
-        trace = run_fixed_friction(tr, cand, seed=seed, particles=particles)
+        trace = run_fixed_friction(tr, cand, seed=seed, particles=particles, overrides=fo)
     else:
         msg = (
             f"unknown method {method!r}; valid: '{DBCSLAM}', '{NO_FORCE}' or "
@@ -397,7 +405,12 @@ def run_sim_experiments(
         for key in tasks:
             sim, ov = _sim_spec(cfg, key[0])
             rec, trace, wall = run_task(
-                *key, particles=cfg.particles, duration=cfg.duration, overrides=ov, sim=sim
+                *key,
+                particles=cfg.particles,
+                duration=cfg.duration,
+                overrides=ov,
+                sim=sim,
+                filter_overrides=cfg.filter_overrides,
             )
             done[key] = (rec, trace)
             _report(key, rec, wall)
@@ -412,6 +425,7 @@ def run_sim_experiments(
                     duration=cfg.duration,
                     overrides=_sim_spec(cfg, key[0])[1],
                     sim=_sim_spec(cfg, key[0])[0],
+                    filter_overrides=cfg.filter_overrides,
                 ): key
                 for key in tasks
             }
@@ -447,6 +461,7 @@ def render_markdown(
         f"Command: `{command}`  ",
         f"Seeds: {list(cfg.seeds)}; particles: {cfg.particles}; duration: {dur}; "
         f"simulator overrides: {json.dumps({k: dict(v) for k, v in cfg.sim_overrides.items()})}; "
+        f"filter overrides: {json.dumps(dict(cfg.filter_overrides))}; "
         f"wall time {elapsed:.0f} s on {cfg.workers} worker(s); date {utc_now()}; 1-min load "
         f"average at the end {os.getloadavg()[0]:.1f}.",
         "",
@@ -489,6 +504,7 @@ def write_outputs(
             "no_force_baseline": cfg.no_force_baseline,
             "workers": cfg.workers,
             "sim_overrides": {k: dict(v) for k, v in cfg.sim_overrides.items()},
+            "filter_overrides": dict(cfg.filter_overrides),
         },
         "targets": [c.to_dict() for c in checks],
         "summary": summarize(results.records),
@@ -637,6 +653,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_set_argument(p)
     return p
 
 
@@ -664,6 +681,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             no_force_baseline=not args.no_force_baseline,
             workers=args.workers,
             sim_overrides=_sim_overrides(args.push_support_pair),
+            filter_overrides=parse_overrides(
+                args.overrides, [SIM_VARIANTS[s][0] for s in scenarios if s in SIM_VARIANTS]
+            ),
         )
         from sim_publisher.params import load_params
 
