@@ -29,7 +29,8 @@ no ``surface.mu``, the filter's model is a frictionless table and the object coa
 
 Usage: ``python -m dbcslam_research.experiments_sim [--out DIR] [--seeds N] [--particles N]
 [--duration S] [--scenarios edge,gripper,push,push_offcentre] [--workers W]
-[--push-support-pair NAME|none] [--no-fixed] [--no-force-baseline] [--no-figures] [--quiet]``.
+[--push-support-pair NAME|none] [--set KEY=VALUE ...] [--no-fixed] [--no-force-baseline]
+[--no-figures] [--quiet]``.
 Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 """
 
