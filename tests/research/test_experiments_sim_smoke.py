@@ -15,8 +15,11 @@ pytest.importorskip("pybullet")
 from dbcslam_research.experiments_sim import (
     SIM_TARGETS,
     ForceFedFilter,
+    SimExperimentConfig,
     _segments_truth,
+    _sim_spec,
     main,
+    parse_sim_overrides,
     sim_trajectory,
 )
 
@@ -126,3 +129,38 @@ def test_set_with_a_bad_key_exits_2(tmp_path: Path, capsys: pytest.CaptureFixtur
     argv = ["--out", str(tmp_path), "--scenarios", "gripper", "--set", "nope=1", "--quiet"]
     assert main(argv) == 2
     assert "--set 'nope=1'" in capsys.readouterr().err
+
+
+def test_sim_set_reaches_the_simulator(tmp_path: Path) -> None:
+    argv = ["--out", str(tmp_path), "--seeds", "1", "--particles", "8", "--duration", "0.3"]
+    argv += ["--scenarios", "gripper", "--workers", "1", "--no-figures", "--quiet"]
+    assert main([*argv, "--sim-set", "jaw_mu=0.7"]) == 0
+    data = json.loads((tmp_path / "experiments_sim.json").read_text())
+    assert data["config"]["sim_overrides"]["gripper"] == {"jaw_mu": 0.7}
+    given = data["config"]["sim_overrides"]
+    cfg = SimExperimentConfig(scenarios=("gripper",), sim_overrides=given)
+    sim, overrides = _sim_spec(cfg, "gripper")
+    tr, _, _ = sim_trajectory(sim, 0, duration=0.1, overrides=overrides)
+    assert tr.mu_pair.tolist() == [0.7]  # the truth the runs were scored against
+
+
+@pytest.mark.parametrize(
+    ("item", "says"),
+    [
+        ("jaw_muu=0.7", "valid: "),  # names the simulator's parameters
+        ("jaw_mu", "expected KEY=VALUE"),
+        ("jaw_mu=-1", "out of range"),
+    ],
+)
+def test_sim_set_bad_item_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], item: str, says: str
+) -> None:
+    argv = ["--out", str(tmp_path), "--scenarios", "gripper", "--sim-set", item, "--quiet"]
+    assert main(argv) == 2
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / "experiments_sim.json").exists()
+
+
+def test_parse_sim_overrides_reads_literals() -> None:
+    got = parse_sim_overrides(["jaw_mu=0.7", "jaw_speed = 0.02", "name=abc"])
+    assert got == {"jaw_mu": 0.7, "jaw_speed": 0.02, "name": "abc"}
