@@ -559,7 +559,8 @@ def score(trace: RunTrace) -> dict[str, float]:
     Edge: stick_slide_accuracy, friction_map_accuracy (slid cells whose true coefficient is
     constant over the cell), true_friction_posterior_mean (mean posterior of the true local
     coefficient over in-contact steps). Gripper: yaw_rmse (rad), yaw_rmse_ratio,
-    final_true_friction_posterior.
+    final_true_friction_posterior and final_friction_argmax (the candidate of the first pair
+    with the largest final posterior: the coefficient the run ends on).
     """
     m: dict[str, float] = {}
     pos = position_rmse(trace.est_q[:, :2], trace.true_q[:, :2])
@@ -585,6 +586,9 @@ def score(trace: RunTrace) -> dict[str, float]:
     if trace.true_friction_index >= 0:
         m["final_true_friction_posterior"] = final_true_friction_posterior(
             trace.friction_post, trace.true_friction_index
+        )
+        m["final_friction_argmax"] = float(
+            trace.candidates[int(np.argmax(trace.friction_post[-1]))]
         )
     if trace.scenario == "edge":
         ti = _nearest_index(trace.true_mu[:, 0], trace.candidates)

@@ -96,6 +96,16 @@ def test_score_gripper_yaw_and_friction() -> None:
     assert m["final_true_friction_posterior"] in (0.0, 1.0)
 
 
+@pytest.mark.parametrize("winner", [0, 1, 2])
+def test_score_names_the_coefficient_a_run_ends_on(winner: int) -> None:
+    tr = perfect_trace("gripper")
+    post = np.full_like(tr.friction_post, 0.1)
+    post[-1, winner] = 0.8
+    m = score(replace(tr, friction_post=post))
+    assert m["final_friction_argmax"] == tr.candidates[winner]
+    assert m["final_true_friction_posterior"] == pytest.approx(post[-1, tr.true_friction_index])
+
+
 def rec(scen: str, seed: int, method: str, **metrics: float) -> RunRecord:
     return RunRecord(scen, seed, method, 10, dict(metrics))
 

@@ -113,6 +113,7 @@ PER_SEED_KEYS: tuple[str, ...] = (
     "contact_mode_accuracy",
     "friction_map_accuracy",
     "final_true_friction_posterior",
+    "final_friction_argmax",
 )
 """Metrics listed per seed (after the position RMSE) in :func:`per_seed_table`."""
 
