@@ -23,7 +23,6 @@ Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
 import datetime as dt
 import json
@@ -53,6 +52,7 @@ from dbcslam_core.experiments import (
 )
 from dbcslam_core.metrics import position_rmse
 from dbcslam_core.rbpf import FilterConfig
+from dbcslam_research.cli import key_values
 
 __all__ = [
     "DEFAULT_OUT",
@@ -432,16 +432,7 @@ def parse_overrides(items: Sequence[str], scenarios: Sequence[str]) -> dict[str,
     the text). Raises ValueError naming the item when KEY is not a field of `FilterConfig`,
     and naming the scenario when the overrides together are not valid on its preset."""
     fields = sorted(f.name for f in dataclasses.fields(FilterConfig))
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = (part.strip() for part in item.partition("="))
-        if not sep or key not in fields:
-            msg = f"--set {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}"
-            raise ValueError(msg)
-        try:
-            out[key] = ast.literal_eval(text)
-        except (ValueError, SyntaxError):
-            out[key] = text
+    out = key_values(items, "--set", fields, f"with KEY one of {', '.join(fields)}")
     for kind in scenarios if out else ():
         try:
             FilterConfig.preset(kind, **out)

@@ -39,7 +39,6 @@ Exit code 0 when it ran (whether or not targets pass), 2 on bad arguments.
 from __future__ import annotations
 
 import argparse
-import ast
 import concurrent.futures as cf
 import dataclasses
 import json
@@ -76,6 +75,7 @@ from dbcslam_core.metrics import friction_map_accuracy, position_rmse, slid_cell
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.synthetic import Trajectory
+from dbcslam_research.cli import key_values
 from dbcslam_research.experiments import (
     TABLE_METRICS,
     add_set_argument,
@@ -676,17 +676,7 @@ def parse_sim_overrides(items: Sequence[str]) -> dict[str, Any]:
     """``--sim-set KEY=VALUE`` items -> simulator parameter overrides (VALUE a Python
     literal, else the text); raises ValueError naming an item without ``=``. The keys are
     validated per simulator by `sim_publisher.params.load_params` (see `main`)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = (part.strip() for part in item.partition("="))
-        if not sep or not key:
-            msg = f"--sim-set {item!r}: expected KEY=VALUE (a simulator parameter)"
-            raise ValueError(msg)
-        try:
-            out[key] = ast.literal_eval(text)
-        except (ValueError, SyntaxError):
-            out[key] = text
-    return out
+    return key_values(items, "--sim-set", None, "(a simulator parameter)")
 
 
 def _sim_overrides(
