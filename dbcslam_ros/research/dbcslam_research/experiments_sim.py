@@ -701,6 +701,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     scenarios = tuple(s for s in args.scenarios.split(",") if s)
+    sims = [SIM_VARIANTS[s][0] for s in scenarios if s in SIM_VARIANTS]  # their simulators
     try:
         cfg = SimExperimentConfig(
             seeds=tuple(range(args.seeds)) if args.seeds >= 1 else (),
@@ -711,13 +712,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             no_force_baseline=not args.no_force_baseline,
             workers=args.workers,
             sim_overrides=_sim_overrides(
-                args.push_support_pair,
-                parse_sim_overrides(args.sim_set),
-                [SIM_VARIANTS[s][0] for s in scenarios if s in SIM_VARIANTS],
+                args.push_support_pair, parse_sim_overrides(args.sim_set), sims
             ),
-            filter_overrides=parse_overrides(
-                args.overrides, [SIM_VARIANTS[s][0] for s in scenarios if s in SIM_VARIANTS]
-            ),
+            filter_overrides=parse_overrides(args.overrides, sims),
         )
         from sim_publisher.params import load_params
 
