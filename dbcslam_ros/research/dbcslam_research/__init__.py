@@ -11,6 +11,10 @@ One ``python -m dbcslam_research.<module>`` entry each; every one writes into ``
   says about the pusher contact; ``push_nmse``: quasi-static full-push prediction error;
 - ``science``: discrepancy-analysis benchmark; ``mitpush_discrepancy``: the discrepancy
   analysis on the MIT pushes (evidence per push model and split);
+- ``gripper_evidence``: how much a pybullet grasp says about the jaw friction (per-run
+  verdicts of fixed-friction filters); ``friction_calibration``: DBC-SLAM's final friction
+  posterior against those verdicts;
+- ``step_profile``: wall time per phase of the filter step;
 - ``readme_results``: the README's results section from the results folder.
 """
 

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import argparse
 import ast
-from collections.abc import Collection, Sequence
-from typing import Any
+import time
+from collections.abc import Callable, Collection, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, TypeVar
 
-__all__ = ["doc_parser", "ints_argument", "key_values"]
+__all__ = ["doc_parser", "ints_argument", "key_values", "pool_map", "settings_dirname"]
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 def doc_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
@@ -51,4 +56,32 @@ def key_values(
             out[key] = ast.literal_eval(text)
         except (ValueError, SyntaxError):
             out[key] = text
+    return out
+
+
+def settings_dirname(prefix: str, settings: Mapping[str, Any]) -> str:
+    """A folder name for a run with `settings` (KEY=VALUE overrides): `prefix` followed by
+    ``KEY=VALUE`` items in key order joined by ``_``, characters other than letters, digits
+    and ``._=-`` replaced by ``-`` (so that variants of a report do not overwrite each
+    other)."""
+    name = "_".join(f"{k}={v}" for k, v in sorted(settings.items()))
+    return prefix + "".join(ch if ch.isalnum() or ch in "._=-" else "-" for ch in name)
+
+
+def pool_map(
+    fn: Callable[[T], R],
+    tasks: Sequence[T],
+    workers: int,
+    say: Callable[[str], None],
+    what: str,
+) -> list[R]:
+    """``[fn(t) for t in tasks]`` on `workers` processes, in order, with a progress line
+    ``  <what>: i/n, s`` after every tenth of the tasks (`fn` must be picklable)."""
+    out: list[R] = []
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(workers) as ex:
+        for i, row in enumerate(ex.map(fn, tasks), 1):
+            out.append(row)
+            if i % max(1, len(tasks) // 10) == 0 or i == len(tasks):
+                say(f"  {what}: {i}/{len(tasks)}, {time.perf_counter() - t0:.0f} s")
     return out

@@ -95,6 +95,7 @@ __all__ = [
     "SIM_VARIANTS",
     "SimExperimentConfig",
     "SimResults",
+    "check_sim_overrides",
     "main",
     "parse_sim_overrides",
     "render_markdown",
@@ -679,6 +680,23 @@ def parse_sim_overrides(items: Sequence[str]) -> dict[str, Any]:
     return key_values(items, "--sim-set", None, "(a simulator parameter)")
 
 
+def check_sim_overrides(sim: str, overrides: Mapping[str, Any]) -> None:
+    """Raise ValueError unless every key of `overrides` is a parameter of the `sim`
+    simulator (the message lists the valid ones) and the values pass its range checks
+    (`sim_publisher.params.load_params`; its ParamError is a ValueError)."""
+    from sim_publisher.params import load_params
+
+    known = sorted(f.name for f in dataclasses.fields(load_params(sim)))
+    unknown = sorted(set(overrides) - set(known))
+    if unknown:
+        msg = (
+            f"--sim-set: {unknown} not parameters of the {sim} simulator; valid: "
+            f"{', '.join(known)}"
+        )
+        raise ValueError(msg)
+    load_params(sim, **overrides)
+
+
 def _sim_overrides(
     push_support_pair: str,
     extra: Mapping[str, Any] | None = None,
@@ -716,19 +734,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             ),
             filter_overrides=parse_overrides(args.overrides, sims),
         )
-        from sim_publisher.params import load_params
-
-        for scen in scenarios:  # simulator parameter errors (ParamError is a ValueError)
-            sim, ov = _sim_spec(cfg, scen)
-            known = sorted(f.name for f in dataclasses.fields(load_params(sim)))
-            unknown = sorted(set(ov) - set(known))
-            if unknown:
-                msg = (
-                    f"--sim-set: {unknown} not parameters of the {sim} simulator; valid: "
-                    f"{', '.join(known)}"
-                )
-                raise ValueError(msg)
-            load_params(sim, **ov)
+        for scen in scenarios:
+            check_sim_overrides(*_sim_spec(cfg, scen))
     except ValueError as err:
         parser.print_usage(sys.stderr)
         print(f"error: {err}", file=sys.stderr)

@@ -2,7 +2,8 @@
 
 ``python -m dbcslam_research.gripper_evidence --out DIR`` measures, on fresh pybullet gripper
 runs (`experiments_sim.sim_trajectory`; the simulator's seed changes the sensor noise, the
-grasp is the same):
+grasp is the same; ``--sim-set KEY=VALUE`` changes the simulation, e.g. ``jaw_mu=0.7`` the
+true coefficient or ``"start=(0.0,0.0,0.2)"`` the grasp):
 
 1. *Impacts within a step* (`impact_residuals`): from every true state (q_k, v_k) of one run
    the core model (`dynamics.PlanarModel`, the filter's contact model) predicts v_{k+1} for
@@ -18,6 +19,11 @@ grasp is the same):
    (P(mu | o) from the scenario's prior and the estimates) is the friction posterior those
    particles can deliver; the margin log p(o | true) - max over the wrong ones is the data's
    evidence, its spread over filter seeds the estimator's noise.
+3. *The data's verdict per run* (`run_verdicts`): at the largest ``--particles`` count, each
+   candidate's log-evidence averaged over the filter seeds gives the (near-)exact posterior
+   P(mu | o) of each run: the runs where it reaches 0.9 on the true coefficient are the runs
+   on which a friction estimator can be both right and calibrated at 0.9; on the others a
+   filter that ends at P(true) >= 0.9 is lucky or overconfident.
 
 Writes ``gripper_evidence.md`` and ``gripper_evidence.json`` into ``--out`` and prints the
 tables.
@@ -31,7 +37,6 @@ import statistics
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -43,17 +48,37 @@ from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.experiments import run_fixed_friction
 from dbcslam_core.rbpf import FilterConfig
 from dbcslam_core.synthetic import Trajectory
+from dbcslam_research.cli import pool_map, settings_dirname
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
-from dbcslam_research.experiments_sim import sim_trajectory
+from dbcslam_research.experiments_sim import (
+    check_sim_overrides,
+    parse_sim_overrides,
+    sim_trajectory,
+)
 
-__all__ = ["evidence_runs", "impact_residuals", "main", "render_markdown"]
+__all__ = [
+    "SimSet",
+    "evidence_runs",
+    "grasp_run",
+    "impact_residuals",
+    "main",
+    "render_markdown",
+    "run_verdicts",
+]
 
 DEFAULT_OUT = Path("dbcslam_ros/research/results/gripper_evidence")
 
+SimSet = tuple[tuple[str, Any], ...]
+"""Simulator overrides as sorted (key, value) pairs (hashable: runs are cached)."""
+
 
 @lru_cache(maxsize=64)
-def _run(seed: int, duration: float | None = None) -> Trajectory:
-    tr, _params, _force = sim_trajectory("gripper", seed, duration=duration)
+def grasp_run(seed: int, duration: float | None = None, sim_set: SimSet = ()) -> Trajectory:
+    """Pybullet gripper run `seed` (`duration` s, None = the simulator's default; simulator
+    overrides `sim_set`) as a core trajectory; cached per process."""
+    tr, _params, _force = sim_trajectory(
+        "gripper", seed, duration=duration, overrides=dict(sim_set)
+    )
     return tr
 
 
@@ -80,15 +105,20 @@ def _advance(
 
 
 def impact_residuals(
-    seed: int, substeps: int, top: int = 4, duration: float | None = None
+    seed: int,
+    substeps: int,
+    top: int = 4,
+    duration: float | None = None,
+    sim_set: SimSet = (),
 ) -> dict[str, Any]:
     """Section 1: per-candidate velocity log-likelihood of pybullet's steps (run `seed`,
-    `duration` s, None = the simulator's default) under the one-step and the sub-stepped
-    model (the gripper preset's velocity process noise), summed relative to the best
-    candidate over the steps where both models solve for every candidate, and the `top`
-    steps where the candidates differ most (nats). Steps where the contact LCP has no
-    solution from pybullet's state (the squeezed, jammed grasp) are counted, not scored."""
-    tr = _run(seed, duration)
+    `duration` s, None = the simulator's default; simulator overrides `sim_set`) under the
+    one-step and the sub-stepped model (the gripper preset's velocity process noise), summed
+    relative to the best candidate over the steps where both models solve for every
+    candidate, and the `top` steps where the candidates differ most (nats). Steps where the
+    contact LCP has no solution from pybullet's state (the squeezed, jammed grasp) are
+    counted, not scored."""
+    tr = grasp_run(seed, duration, sim_set)
     sc = tr.scenario
     cands = [float(c) for c in sc.friction.candidates[0]]
     sig = np.asarray(FilterConfig.preset("gripper").process_noise[: sc.nq])
@@ -125,11 +155,12 @@ def impact_residuals(
     return out
 
 
-def _evidence_task(args: tuple[int, int, int]) -> dict[str, Any]:
+def _evidence_task(args: tuple[int, int, int, SimSet]) -> dict[str, Any]:
     """Log marginal likelihood of every candidate's fixed-friction filter on pybullet run
-    `run` with filter seed `fseed` and `particles` particles."""
-    run, fseed, particles = args
-    tr = _run(run)
+    `run` (simulator overrides `sim_set`) with filter seed `fseed` and `particles`
+    particles."""
+    run, fseed, particles, sim_set = args
+    tr = grasp_run(run, None, sim_set)
     sc = tr.scenario
     log_ml = []
     for c in range(len(sc.friction.candidates[0])):
@@ -143,6 +174,7 @@ def _evidence_task(args: tuple[int, int, int]) -> dict[str, Any]:
     post = np.exp(post - post.max())
     return {
         "run": run,
+        "true": true,
         "filter_seed": fseed,
         "particles": particles,
         "log_ml": log_ml,
@@ -157,16 +189,45 @@ def evidence_runs(
     particles: Sequence[int],
     workers: int,
     say: Callable[[str], None],
+    *,
+    sim_set: SimSet = (),
 ) -> list[dict[str, Any]]:
     """Section 2: one row per (particle count, pybullet run, filter seed)."""
-    tasks = [(r, f, p) for p in particles for r in range(runs) for f in range(filter_seeds)]
+    tasks = [
+        (r, f, p, sim_set) for p in particles for r in range(runs) for f in range(filter_seeds)
+    ]
+    return pool_map(_evidence_task, tasks, workers, say, "evidence (filter sets)")
+
+
+def run_verdicts(
+    rows: Sequence[dict[str, Any]], particles: int, prior: Sequence[float]
+) -> list[dict[str, Any]]:
+    """Section 3: per pybullet run, from the rows of `particles` particles: each candidate's
+    log-evidence averaged over the filter seeds (nats), the posterior P(mu | o) it gives
+    under `prior` (the scenario's), P(true), the most probable candidate and the margin
+    log p(o | true) - max over the wrong ones."""
+    by_run: dict[int, list[dict[str, Any]]] = {}
+    for r in rows:
+        if r["particles"] == particles:
+            by_run.setdefault(r["run"], []).append(r)
     out: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(workers) as ex:
-        for i, row in enumerate(ex.map(_evidence_task, tasks), 1):
-            out.append(row)
-            if i % max(1, len(tasks) // 10) == 0 or i == len(tasks):
-                say(f"  evidence: {i}/{len(tasks)} filter sets, {time.perf_counter() - t0:.0f} s")
+    for run, rs in sorted(by_run.items()):
+        ml = np.mean([r["log_ml"] for r in rs], axis=0)
+        logp = np.log(np.asarray(prior, dtype=np.float64)) + ml
+        post = np.exp(logp - logp.max())
+        post /= post.sum()
+        true = int(rs[0]["true"])
+        out.append(
+            {
+                "run": run,
+                "filter_seeds": len(rs),
+                "true": true,
+                "posterior": post.tolist(),
+                "p_true": float(post[true]),
+                "most_probable": int(np.argmax(post)),
+                "margin": float(ml[true] - max(m for i, m in enumerate(ml) if i != true)),
+            }
+        )
     return out
 
 
@@ -200,7 +261,9 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
         "# Jaw-friction evidence on pybullet grasps",
         "",
         f"Command: `{command}`  ",
-        f"Date: {result['date']}; {result['wall_s']:.0f} s wall.",
+        f"Date: {result['date']}; {result['wall_s']:.0f} s wall; simulator overrides: "
+        + (", ".join(f"{k}={v!r}" for k, v in result.get("sim_set", {}).items()) or "none")
+        + f" (true jaw mu {cause['true_mu']:g}).",
         "",
         f"## 1. Impacts: one step vs {n_sub} sub-steps from pybullet's true states "
         f"(run {cause['seed']}, true mu {cause['true_mu']:g})",
@@ -251,7 +314,39 @@ def render_markdown(result: dict[str, Any], command: str) -> str:
             + (", ".join(f"{r['run']}/{r['filter_seed']}: {r['p_true']:.2f}" for r in low) or "-")
             + " |"
         )
+    lines += _verdict_lines(result, cands)
     return "\n".join(lines) + "\n"
+
+
+def _verdict_lines(result: dict[str, Any], cands: Sequence[float]) -> list[str]:
+    """Section 3 of the report (empty when the result has no verdicts)."""
+    verdicts = result.get("verdicts")
+    if not verdicts:
+        return []
+    p = result["verdict_particles"]
+    low = [v for v in verdicts if v["p_true"] < 0.9]
+    right = sum(v["most_probable"] == v["true"] for v in verdicts)
+    margins = [v["margin"] for v in verdicts]
+    return [
+        "",
+        f"## 3. The data's verdict per run ({p} particles, log-evidence averaged over the "
+        "filter seeds)",
+        "",
+        "P(true) from each candidate's mean log-evidence and the prior: the posterior a "
+        "(near-)exact filter ends with. A run below 0.9 is one where no calibrated estimator "
+        "can end at P(true) >= 0.9.",
+        "",
+        "| runs | P(true) >= 0.9 | true most probable | margin median / min [nats] | "
+        "below 0.9 (run: P(true), most probable mu) |",
+        "|---|---|---|---|---|",
+        f"| {len(verdicts)} | {len(verdicts) - len(low)} | {right} | "
+        f"{statistics.median(margins):.1f} / {min(margins):.1f} | "
+        + (
+            ", ".join(f"{v['run']}: {v['p_true']:.2f}, {cands[v['most_probable']]:g}" for v in low)
+            or "-"
+        )
+        + " |",
+    ]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -262,7 +357,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="example: python -m dbcslam_research.gripper_evidence --runs 5 --filter-seeds 4",
     )
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output dir ({DEFAULT_OUT})")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help=f"output dir ({DEFAULT_OUT}; with --sim-set a sim_KEY=VALUE subfolder of it)",
+    )
     p.add_argument("--runs", type=int, default=5, help="pybullet runs 0..N-1 (5)")
     p.add_argument("--filter-seeds", type=int, default=4, help="filter seeds 0..N-1 (4)")
     p.add_argument(
@@ -270,6 +370,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--substeps", type=int, default=10, help="sub-steps of section 1 (10)")
     p.add_argument("--workers", type=int, default=2, help="processes (2)")
+    p.add_argument(
+        "--sim-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="gripper simulator parameter for every run (repeatable; VALUE a Python literal, "
+        'e.g. --sim-set jaw_mu=0.7, --sim-set "start=(0.0,0.0,0.2)"; validated by the '
+        "simulator's parameter schema)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines or tables")
     a = p.parse_args(argv)
     for name in ("runs", "filter_seeds", "substeps", "workers"):
@@ -277,6 +386,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(a, name)}")
     if min(a.particles) < 1:
         p.error(f"--particles must be >= 1, got {a.particles}")
+    try:
+        overrides = parse_sim_overrides(a.sim_set)
+        check_sim_overrides("gripper", overrides)
+    except ValueError as err:
+        p.error(str(err))
+    sim_set: SimSet = tuple(sorted(overrides.items()))
     say = progress_printer(a.quiet)
     t0 = time.perf_counter()
     say(f"section 1: pybullet run 0, one step vs {a.substeps} sub-steps")
@@ -286,11 +401,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         "runs": a.runs,
         "filter_seeds": a.filter_seeds,
         "particles": a.particles,
-        "cause": impact_residuals(0, a.substeps),
+        "sim_set": dict(sim_set),
+        "cause": impact_residuals(0, a.substeps, sim_set=sim_set),
     }
     say("section 2: fixed-friction filters")
-    result["evidence"] = evidence_runs(a.runs, a.filter_seeds, a.particles, a.workers, say)
+    result["evidence"] = evidence_runs(
+        a.runs, a.filter_seeds, a.particles, a.workers, say, sim_set=sim_set
+    )
+    result["verdict_particles"] = max(a.particles)
+    prior = grasp_run(0, None, sim_set).scenario.friction.prior[0]
+    result["verdicts"] = run_verdicts(result["evidence"], max(a.particles), prior)
     result["wall_s"] = time.perf_counter() - t0
+    if a.out is None:  # a simulator variant does not overwrite the default report
+        a.out = DEFAULT_OUT / settings_dirname("sim_", overrides) if overrides else DEFAULT_OUT
     a.out.mkdir(parents=True, exist_ok=True)
     md = render_markdown(result, command_line("python -m dbcslam_research.gripper_evidence", argv))
     (a.out / "gripper_evidence.md").write_text(md, encoding="utf-8")
