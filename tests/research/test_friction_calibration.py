@@ -66,6 +66,12 @@ def test_compare_refuses_a_run_without_verdict() -> None:
         compare([_verdict(0, 0.99)], [_final(7, [0.0, 1.0, 0.0])])
 
 
+def test_compare_refuses_runs_with_another_true_coefficient() -> None:
+    final = _final(0, [0.0, 1.0, 0.0])  # true index 1
+    with pytest.raises(ValueError, match=r"runs \[0\]: the filter's true coefficient"):
+        compare([_verdict(0, 0.99, true=2)], [final])
+
+
 def test_default_out_keeps_variants_apart(tmp_path: Path) -> None:
     ev = tmp_path / "gripper_evidence.json"
     assert default_out(ev, {}) == tmp_path

@@ -128,7 +128,7 @@ def compare(
     verdicts: Sequence[Mapping[str, Any]], finals: Sequence[Mapping[str, Any]]
 ) -> list[dict[str, Any]]:
     """Per particle count of `finals`: the counts and the calibration gap of the module
-    docstring, over the runs that have a verdict (a final without one is an error)."""
+    docstring (a final without a verdict, or with another true coefficient, is an error)."""
     by_run = {int(v["run"]): v for v in verdicts}
     counts = sorted({int(f["particles"]) for f in finals})
     out: list[dict[str, Any]] = []
@@ -137,6 +137,15 @@ def compare(
         missing = sorted(int(f["run"]) for f in rows if int(f["run"]) not in by_run)
         if missing:
             msg = f"runs {missing} have no verdict in the evidence report"
+            raise ValueError(msg)
+        other = sorted(
+            int(f["run"]) for f in rows if int(f["true"]) != int(by_run[int(f["run"])]["true"])
+        )
+        if other:  # e.g. a simulator override that did not reach the simulation
+            msg = (
+                f"runs {other}: the filter's true coefficient is not the evidence report's; "
+                "the runs differ from the ones the verdicts were measured on"
+            )
             raise ValueError(msg)
         right = decided = confident_undecided = confidently_wrong = ends_right = 0
         gaps: list[float] = []
