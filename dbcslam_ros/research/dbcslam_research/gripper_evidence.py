@@ -47,6 +47,7 @@ from dbcslam_core.dynamics import PlanarModel, State
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.experiments import run_fixed_friction
 from dbcslam_core.rbpf import FilterConfig
+from dbcslam_core.resampling import normalise_log_weights
 from dbcslam_core.synthetic import Trajectory
 from dbcslam_research.cli import pool_map, settings_dirname
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
@@ -170,17 +171,24 @@ def _evidence_task(args: tuple[int, int, int, SimSet]) -> dict[str, Any]:
         assert trace.log_likelihood is not None  # (run_filter records it)
         log_ml.append(float(np.sum(trace.log_likelihood)))
     true = _true_index(tr)
-    post = np.log(np.asarray(sc.friction.prior[0], dtype=np.float64)) + np.asarray(log_ml)
-    post = np.exp(post - post.max())
+    post, margin = _bayes(sc.friction.prior[0], log_ml, true)
     return {
         "run": run,
         "true": true,
         "filter_seed": fseed,
         "particles": particles,
         "log_ml": log_ml,
-        "margin": log_ml[true] - max(m for i, m in enumerate(log_ml) if i != true),
-        "p_true": float(post[true] / post.sum()),
+        "margin": margin,
+        "p_true": float(post[true]),
     }
+
+
+def _bayes(prior: Sequence[float], log_ml: Sequence[float], true: int) -> tuple[np.ndarray, float]:
+    """The candidates' posterior from their `prior` and log-evidence `log_ml` (nats), and
+    the margin log p(o | true) - max over the wrong candidates."""
+    post, _ = normalise_log_weights(np.log(np.asarray(prior, dtype=np.float64)) + log_ml)
+    margin = float(log_ml[true] - max(m for i, m in enumerate(log_ml) if i != true))
+    return post, margin
 
 
 def evidence_runs(
@@ -213,10 +221,8 @@ def run_verdicts(
     out: list[dict[str, Any]] = []
     for run, rs in sorted(by_run.items()):
         ml = np.mean([r["log_ml"] for r in rs], axis=0)
-        logp = np.log(np.asarray(prior, dtype=np.float64)) + ml
-        post = np.exp(logp - logp.max())
-        post /= post.sum()
         true = int(rs[0]["true"])
+        post, margin = _bayes(prior, ml.tolist(), true)
         out.append(
             {
                 "run": run,
@@ -225,7 +231,7 @@ def run_verdicts(
                 "posterior": post.tolist(),
                 "p_true": float(post[true]),
                 "most_probable": int(np.argmax(post)),
-                "margin": float(ml[true] - max(m for i, m in enumerate(ml) if i != true)),
+                "margin": margin,
             }
         )
     return out
