@@ -365,10 +365,12 @@ class FilterConfig:
             if f.name.startswith("bank_") and getattr(self, f.name) != f.default
         ]
         if changed and not self.friction_bank:
+            one = len(changed) == 1
             msg = (
-                f"{', '.join(changed)} only act with friction_bank=True, which is off here (the "
-                f"gripper preset turns it on below {GRIPPER_BANK_PARTICLES} particles, this "
-                f"config has {self.particles}); pass friction_bank=True to use them"
+                f"{', '.join(changed)} {'acts' if one else 'act'} only with friction_bank=True, "
+                f"which is off here (the gripper preset turns it on below "
+                f"{GRIPPER_BANK_PARTICLES} particles, this config has {self.particles}); pass "
+                f"friction_bank=True to use {'it' if one else 'them'}"
             )
             raise ModelError(msg)
 

@@ -55,9 +55,9 @@ def test_bank_is_the_default_of_the_gripper_preset_only_at_small_particle_counts
 def test_bank_options_without_the_bank_are_refused_not_ignored() -> None:
     """At 200 particles and more the gripper preset has no bank: a bank option there would
     silently do nothing, so it is an error that says how to turn the bank on."""
-    with pytest.raises(ModelError, match="bank_switch only act with friction_bank=True"):
+    with pytest.raises(ModelError, match="bank_switch acts only with friction_bank=True"):
         FilterConfig.preset("gripper", particles=GRIPPER_BANK_PARTICLES, bank_switch=1e-4)
-    with pytest.raises(ModelError, match="bank_resampling, bank_surprise_window only act"):
+    with pytest.raises(ModelError, match="bank_resampling, bank_surprise_window act only"):
         FilterConfig.preset(
             "edge", bank_resampling="hypothesis", bank_surprise_window=10, particles=40
         )

@@ -112,7 +112,7 @@ def test_parse_overrides(item: str, expected: dict[str, object]) -> None:
     [
         ("prune=0.01", "KEY one of"),
         ("prune_threshold", "KEY one of"),
-        ("particles=0", "on the edge preset: particles"),
+        ("particles=80", "the particle count is --particles"),
         ("resampler=nope", "nope"),
         ("friction_bank=True", "parameter_model"),
     ],
@@ -123,6 +123,29 @@ def test_parse_overrides_names_the_bad_item(item: str, message: str) -> None:
     with pytest.raises(ValueError, match=message) as exc:
         parse_overrides([item], ["edge"])
     assert repr(item) in str(exc.value)
+
+
+@pytest.mark.parametrize(
+    ("particles", "refused_at"),
+    [((40,), None), ((40, 100), None), ((40, 500), 500), ((500,), 500), ((), "default")],
+)
+def test_parse_overrides_checks_the_counts_that_run(
+    particles: tuple[int, ...], refused_at: int | str | None
+) -> None:
+    """The gripper preset turns the friction bank on below 200 particles, so a bank option
+    is valid at 40 and not at 500: it is checked at the counts the command runs (the
+    preset's default 500 when none is given)."""
+    from dbcslam_research.experiments import parse_overrides
+
+    if refused_at is None:
+        assert parse_overrides(["bank_switch=0.001"], ["gripper"], particles) == {
+            "bank_switch": 0.001
+        }
+        return
+    where = "preset: " if refused_at == "default" else f"preset at {refused_at} particles: "
+    with pytest.raises(ValueError, match=where + "bank_switch acts only") as exc:
+        parse_overrides(["bank_switch=0.001"], ["gripper"], particles)
+    assert "'bank_switch=0.001'" in str(exc.value)
 
 
 def test_shared_report_helpers(tmp_path: Path) -> None:

@@ -101,6 +101,30 @@ def test_unusable_evidence_exits_2(
     assert says in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--particles", "40", "500", "--set", "bank_switch=0.01"], "at 500 particles"),
+        (["--set", "particles=80"], "the particle count is --particles"),
+    ],
+)
+def test_filter_settings_are_checked_at_the_counts_that_run(
+    tmp_path: Path, args: list[str], says: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    evidence = {
+        "sim_set": {},
+        "verdict_particles": 1000,
+        "cause": {"candidates": [0.1, 0.4, 0.7]},
+        "verdicts": [{"run": 0, "true": 1, "p_true": 0.97}],
+    }
+    path = tmp_path / "gripper_evidence.json"
+    path.write_text(json.dumps(evidence), encoding="utf-8")
+    with pytest.raises(SystemExit) as exc:
+        main(["--evidence", str(path), "--quiet", *args])
+    assert exc.value.code == 2
+    assert says in capsys.readouterr().err
+
+
 def test_command_runs_the_evidence_runs_with_their_simulator_overrides(
     tmp_path: Path,
 ) -> None:

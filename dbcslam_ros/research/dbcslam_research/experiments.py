@@ -427,19 +427,32 @@ def add_set_argument(p: argparse.ArgumentParser) -> None:
     )
 
 
-def parse_overrides(items: Sequence[str], scenarios: Sequence[str]) -> dict[str, Any]:
+def parse_overrides(
+    items: Sequence[str], scenarios: Sequence[str], particles: Sequence[int] = ()
+) -> dict[str, Any]:
     """``--set KEY=VALUE`` items -> `FilterConfig` overrides (VALUE a Python literal, else
-    the text). Raises ValueError naming the item when KEY is not a field of `FilterConfig`,
-    and naming the scenario when the overrides together are not valid on its preset."""
-    fields = sorted(f.name for f in dataclasses.fields(FilterConfig))
-    out = key_values(items, "--set", fields, f"with KEY one of {', '.join(fields)}")
+    the text). Raises ValueError naming the item when KEY is not a field of `FilterConfig`
+    or is ``particles`` (the command's ``--particles`` sets it), and naming the scenario and
+    the count when the overrides together are not valid on its preset at one of the
+    `particles` counts the command runs (the preset depends on the count: the gripper's
+    friction bank below `rbpf.GRIPPER_BANK_PARTICLES`; empty: the preset's default count)."""
+    fields = sorted(f.name for f in dataclasses.fields(FilterConfig) if f.name != "particles")
+    out = key_values(
+        items,
+        "--set",
+        fields,
+        f"with KEY one of {', '.join(fields)} (the particle count is --particles)",
+    )
+    counts: list[dict[str, int]] = [{"particles": n} for n in dict.fromkeys(particles)] or [{}]
     for kind in scenarios if out else ():
-        try:
-            FilterConfig.preset(kind, **out)
-        except (ModelError, TypeError, ValueError) as err:
-            given = " ".join(f"--set {item!r}" for item in items)
-            msg = f"{given} on the {kind} preset: {err}"
-            raise ValueError(msg) from err
+        for count in counts:
+            try:
+                FilterConfig.preset(kind, **count, **out)
+            except (ModelError, TypeError, ValueError) as err:
+                given = " ".join(f"--set {item!r}" for item in items)
+                at = f" at {count['particles']} particles" if count else ""
+                msg = f"{given} on the {kind} preset{at}: {err}"
+                raise ValueError(msg) from err
     return out
 
 
@@ -455,7 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.steps is not None and args.steps < 3:
             msg = f"--steps must be >= 3, got {args.steps}"
             raise ValueError(msg)
-        overrides = parse_overrides(args.overrides, scenarios)
+        overrides = parse_overrides(args.overrides, scenarios, [args.particles])
     except ValueError as err:
         parser.print_usage(sys.stderr)
         print(f"error: {err}", file=sys.stderr)

@@ -732,7 +732,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sim_overrides=_sim_overrides(
                 args.push_support_pair, parse_sim_overrides(args.sim_set), sims
             ),
-            filter_overrides=parse_overrides(args.overrides, sims),
+            filter_overrides=parse_overrides(args.overrides, sims, [args.particles]),
         )
         for scen in scenarios:
             check_sim_overrides(*_sim_spec(cfg, scen))

@@ -247,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--workers and --particles must be >= 1, got {a.workers}, {a.particles}")
     try:
         ev = load_verdicts(a.evidence)
-        overrides = parse_overrides(a.overrides, ["gripper"])
+        overrides = parse_overrides(a.overrides, ["gripper"], a.particles)
     except ValueError as err:
         p.error(str(err))
     say = progress_printer(a.quiet)
