@@ -81,6 +81,7 @@ from dbcslam_core.scenario import (
     gripper_scenario,
     push_scenario,
 )
+from dbcslam_core.surprise import SurpriseMonitor
 from dbcslam_core.synthetic import PUSH_RECT, PUSH_RECT_MASS
 from dbcslam_core.transition import (
     TransitionParams,
@@ -633,7 +634,7 @@ class DbcSlamFilter:
         self.map = FrictionMap(prior, cfg.map_range[0], cfg.map_range[1], cfg.map_cell)
         self._initialised = False
         self._step = 0
-        self._recent_log_ml: list[float] = []  # `_surprised`: recent log p(o_l | o_<l)
+        self._surprise = SurpriseMonitor(cfg.bank_surprise_window)  # `_surprised`
         self._joints_prev: FloatArray | None = None
         self._joint_filter = JointSmoother(
             len(scenario.joints),
@@ -853,7 +854,7 @@ class DbcSlamFilter:
                 ps.copy_log_w = np.zeros((p, self._n_sub))
                 self._log_pi = np.log(self._prior_b)
         ps.history.clear()
-        self._recent_log_ml.clear()
+        self._surprise.clear()
         self._initialised = True
 
     def _auto_initialize(self, lin: LinearObservation | None, joints: FloatArray) -> None:
@@ -1403,12 +1404,7 @@ class DbcSlamFilter:
         w_prev, _ = normalise_log_weights(self.particles.log_w)
         with np.errstate(divide="ignore"):
             log_ml = float(_logsumexp(np.log(w_prev) + incr, axis=0))
-        recent = self._recent_log_ml
-        surprised = len(recent) >= 5 and float(np.median(recent)) - log_ml > gate
-        if np.isfinite(log_ml):
-            recent.append(log_ml)
-            del recent[: -self.config.bank_surprise_window]
-        return surprised
+        return self._surprise.update(log_ml) > gate
 
     def _bank_evidence(
         self, incr_rows: FloatArray, post: _Posterior, observed: bool = True

@@ -306,9 +306,9 @@ def test_surprise_gate_skips_the_belief_update_of_a_step_that_lost_track() -> No
     filt._bank_evidence(mild.copy(), _posterior_stub(filt))  # type: ignore[arg-type]
     assert ps.bank[0, 1] > ps.bank[0, 0] > ps.bank[0, 2]
     # unobserved steps never gate and are not recorded
-    n_recent = len(filt._recent_log_ml)
+    n_recent = len(filt._surprise)
     filt._bank_evidence(lost.copy(), _posterior_stub(filt), observed=False)  # type: ignore[arg-type]
-    assert len(filt._recent_log_ml) == n_recent
+    assert len(filt._surprise) == n_recent
 
 
 def test_hypothesis_resampling_validation() -> None:

@@ -101,6 +101,30 @@ def test_poses_before_the_scenario_are_counted() -> None:
     assert "waiting for /scenario" in status.message
 
 
+@pytest.mark.parametrize(
+    ("values", "level", "says"),
+    [
+        ({"rejected_total": "0", "surprise_nats_max": "6.1"}, 0, ["running"]),
+        ({"rejected_total": "0", "surprise_nats_max": "10.0"}, 0, ["running"]),
+        ({"rejected_total": "0", "surprise_nats_max": "23.4"}, 1, ["badly explained", "23.4"]),
+        ({"rejected_total": "2", "surprise_nats_max": "3.0"}, 1, ["2 input(s) rejected"]),
+        ({"rejected_total": "2", "surprise_nats_max": "inf"}, 1, ["rejected", "inf nats"]),
+        ({}, 0, ["running"]),
+    ],
+)
+def test_diagnostics_warn_on_rejections_and_badly_explained_observations(
+    values: dict[str, str], level: int, says: list[str]
+) -> None:
+    from dbcslam_ros.node.outputs import diagnostics_message
+
+    status = diagnostics_message(values, 0, configured=True).status[0]
+    assert status.level == bytes([level])
+    assert all(text in status.message for text in says)
+    assert ("badly explained" in status.message) == (
+        float(values.get("surprise_nats_max", 0)) > 10
+    )
+
+
 def test_outputs_pose_first_and_well_formed(node: Any, traj: Any) -> None:
     fake, filt = node
     for k in range(20):
@@ -115,6 +139,8 @@ def test_outputs_pose_first_and_well_formed(node: Any, traj: Any) -> None:
     values = {kv.key: kv.value for kv in fake.last("/diagnostics").status[0].values}
     assert values["estimates_published"] == "19"
     assert float(values["ess"]) > 0 and float(values["latency_ms_mean"]) >= 0
+    assert float(values["surprise_nats_peak"]) >= float(values["surprise_nats_max"])
+    assert int(values["surprised_steps"]) >= 0
 
 
 def test_backlog_keeps_the_newest_pose_and_catches_up(node: Any, traj: Any) -> None:

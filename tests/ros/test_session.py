@@ -407,3 +407,26 @@ def test_jump_confirmed_on_arrival_is_taken_when_processed(fake_filter: Any) -> 
     assert s.add_pose(pose(20.0)) == [] and s.resets == 1
     s.screen_pose(pose(30.0), s.last_pose_ns)
     assert len(s.add_pose(pose(30.0))) == 1
+
+
+def test_tracking_health_statistics(fake_filter: Any) -> None:
+    """The surprise of each estimate against the recent ones (`dbcslam_core.surprise`): the
+    recent largest, the peak and the count above the warning survive a reset; the reference
+    does not (a new track)."""
+    from types import SimpleNamespace
+
+    s = _session()
+    assert "surprise_nats_max" not in s.statistics()  # nothing estimated yet
+    for ll in [10.0] * 6 + [-5.0]:
+        s._note_surprise(SimpleNamespace(log_likelihood=ll))  # type: ignore[arg-type]
+    stats = s.statistics()
+    assert (stats["surprise_nats_max"], stats["surprise_nats_peak"]) == ("15.0", "15.0")
+    assert stats["surprised_steps"] == "1"
+    s.reset()
+    s._note_surprise(SimpleNamespace(log_likelihood=-50.0))  # type: ignore[arg-type]
+    assert s.statistics()["surprised_steps"] == "1"  # no reference yet: not surprising
+    for _ in range(session_mod.SURPRISE_RECENT):
+        s._note_surprise(SimpleNamespace(log_likelihood=-50.0))  # type: ignore[arg-type]
+    stats = s.statistics()
+    assert stats["surprise_nats_max"] == "0.0"  # the surprising step left the recent window
+    assert stats["surprise_nats_peak"] == "15.0"

@@ -11,6 +11,7 @@ from typing import Any
 
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
+from dbcslam_core.surprise import SURPRISE_WARNING
 from dbcslam_ros import runtime as rt
 from dbcslam_ros.contract import MARKERS
 from dbcslam_ros.convert import estimate_messages, ns_to_stamp
@@ -79,15 +80,24 @@ class EstimateOutputs:
 
 def diagnostics_message(values: Mapping[str, str], stamp_ns: int, *, configured: bool) -> Any:
     """The ``/diagnostics`` DiagnosticArray of the filter (status ``dbcslam_filter``): level
-    WARN while not configured (no scenario yet) or when inputs were rejected, else OK."""
+    WARN while not configured (no scenario yet), when inputs were rejected or when a recent
+    estimate's surprise (``surprise_nats_max``) is above `SURPRISE_WARNING` (the
+    observations are badly explained: the filter may have lost the track), else OK."""
     cls = rt.message_class
     level = 0
     if not configured:
         level, text = 1, "waiting for /scenario"
-    elif values.get("rejected_total", "0") != "0":
-        level, text = 1, f"running; {values['rejected_total']} input(s) rejected"
     else:
-        text = "running"
+        notes = []
+        if values.get("rejected_total", "0") != "0":
+            notes.append(f"{values['rejected_total']} input(s) rejected")
+        if float(values.get("surprise_nats_max", "0")) > SURPRISE_WARNING:
+            notes.append(
+                f"observations badly explained (surprise {values['surprise_nats_max']} nats "
+                f"> {SURPRISE_WARNING:g}): estimates unreliable, more particles may help"
+            )
+        level = 1 if notes else 0
+        text = "; ".join(["running", *notes])
     status = cls("diagnostic_msgs/msg/DiagnosticStatus")(
         level=bytes([level]),
         name="dbcslam_filter",

@@ -42,7 +42,11 @@ observation into filter steps. Rules (documented in the README):
   taken; `DIVERGED_AFTER` poses in a row outside the gate reset the filter), catch-up after
   poses dropped from the node's queue (`note_backlog_drop`), the filter steps, and a reset on
   a failed step or a non-finite estimate. It returns a :class:`PoseOutcome`; the session
-  keeps the statistics (counts per reason, step times).
+  keeps the statistics (counts per reason, step times, tracking health).
+* Tracking health: the surprise of every estimate (`dbcslam_core.surprise`: how far its log
+  predictive likelihood falls below the median of the recent steps, nats) over the last
+  `SURPRISE_RECENT` estimates, its peak since start and the estimates above
+  `SURPRISE_WARNING` (``/diagnostics`` turns WARN while a recent one is above it).
 * Observation-side model extensions (from a model file of `dbcslam discrepancy`): the core
   model applies the dynamic effects itself; the session applies the sensor effects to every
   pose before the filter sees it. ``sensor_bias`` (x, y, yaw): the bias is subtracted from the
@@ -66,11 +70,13 @@ from dbcslam_core.geometry import wrap_angle
 from dbcslam_core.observation import ForceObservation, PoseObservation
 from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
 from dbcslam_core.scenario import Disk, Scenario
+from dbcslam_core.surprise import SURPRISE_WARNING, SurpriseMonitor
 from dbcslam_ros.convert import InputRejected, JointReading, PoseReading, WrenchReading
 
 __all__ = [
     "DIVERGED_AFTER",
     "MAX_CONSECUTIVE_OUTLIERS",
+    "SURPRISE_RECENT",
     "WINDOW",
     "FilterSession",
     "PoseOutcome",
@@ -86,6 +92,9 @@ DIVERGED_AFTER = 12
 
 #: Number of recent processed poses the step-time statistics cover.
 WINDOW = 1000
+
+#: Number of recent estimates whose largest surprise ``/diagnostics`` reports (1 s at 100 Hz).
+SURPRISE_RECENT = 100
 
 #: Poses in a row rejected by the gate; the next one is accepted (a persistent deviation is
 #: a change of motion the filter must follow, not a sensor outlier).
@@ -261,6 +270,9 @@ class FilterSession:
         self.backlog_dropped = 0
         self.step_times: deque[float] = deque(maxlen=WINDOW)
         self.model_steps: deque[int] = deque(maxlen=WINDOW)
+        self.surprises: deque[float] = deque(maxlen=SURPRISE_RECENT)  # nats, recent estimates
+        self.surprise_peak = 0.0  # nats, since start
+        self.surprised_steps = 0  # estimates above SURPRISE_WARNING, since start
         self._dropped_since_step = False
         self._outliers_in_row = 0
         self._exceed_in_row = 0
@@ -354,6 +366,7 @@ class FilterSession:
                 return self._failed("nan_estimate", text, reading)
             self.step_times.append(res.step_time_s)
             self.model_steps.append(res.model_steps)
+            self._note_surprise(res.estimate)
             self.last_estimate = res
         return PoseOutcome(tuple(results), reset=reset, message=verdict, level="info")
 
@@ -586,6 +599,10 @@ class FilterSession:
             est = self.last_estimate.estimate
             values["ess"] = f"{est.ess:.1f}"
             values["live_hypotheses"] = f"{est.live_hypotheses:.2f}"
+        if self.surprises:
+            values["surprise_nats_max"] = f"{max(self.surprises):.1f}"
+            values["surprise_nats_peak"] = f"{self.surprise_peak:.1f}"
+            values["surprised_steps"] = str(self.surprised_steps)
         if self.step_times:
             times = np.asarray(self.step_times) * 1e3
             per_step = times / np.asarray(self.model_steps, dtype=np.float64)
@@ -622,6 +639,14 @@ class FilterSession:
     def _new_filter(self) -> None:
         rng = np.random.default_rng(self.seed + self.resets)
         self._filter = DbcSlamFilter(self.scenario, self.config, rng, extensions=self.extensions)
+        self._surprise = SurpriseMonitor()  # a new track: a new reference
+
+    def _note_surprise(self, est: Estimate) -> None:
+        """Record the surprise of an estimate (tracking health, module docstring)."""
+        surprise = self._surprise.update(est.log_likelihood)
+        self.surprises.append(surprise)
+        self.surprise_peak = max(self.surprise_peak, surprise)
+        self.surprised_steps += surprise > SURPRISE_WARNING
 
     def _coast(self, flt: DbcSlamFilter, seconds: float) -> None:
         """Move every particle at its own constant velocity for `seconds` (catch-up only).

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import DbcSlamError
 from dbcslam_core.scenario import Scenario
+from dbcslam_core.surprise import SURPRISE_WARNING
 from dbcslam_ros.bag import open_bag
 from dbcslam_ros.contract import (
     CONTACT_MODES,
@@ -626,6 +627,12 @@ def _diagnostics_summary(arr: BagArrays) -> dict[str, Any]:
     times = [float(v["step_time_ms_mean"]) for _, v in arr.diagnostics if "step_time_ms_mean" in v]
     if times:
         out["step_time_ms_mean"] = _round(float(np.mean(times)), 3)
+    peaks = [
+        float(v["surprise_nats_peak"]) for _, v in arr.diagnostics if "surprise_nats_peak" in v
+    ]
+    if peaks:  # counters since start: the last message's are the run's
+        out["surprise_nats_peak"] = _round(peaks[-1], 1)
+        out["surprised_steps"] = int(arr.diagnostics[-1][1].get("surprised_steps", 0))
     if arr.diagnostics:
         out["diagnostics_last"] = arr.diagnostics[-1][1]
     return out
@@ -792,6 +799,15 @@ def metrics_table(metrics: dict[str, Any]) -> str:
     elif not metrics.get("truth", True):
         rows.append(("truth", "none (missing " + ", ".join(metrics["missing_topics"]) + ")"))
     rows.append(("mean step time", f"{fmt(metrics.get('step_time_ms_mean'), '.2f')} ms"))
+    if metrics.get("surprise_nats_peak") is not None:
+        rows.append(
+            (
+                "tracking health",
+                f"largest surprise {metrics['surprise_nats_peak']:.1f} nats; "
+                f"{metrics.get('surprised_steps', 0)} step(s) above {SURPRISE_WARNING:g} "
+                "(badly explained observations: README 'Tracking health')",
+            )
+        )
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
