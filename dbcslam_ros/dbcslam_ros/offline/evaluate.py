@@ -803,9 +803,9 @@ def metrics_table(metrics: dict[str, Any]) -> str:
         rows.append(
             (
                 "tracking health",
-                f"largest surprise {metrics['surprise_nats_peak']:.1f} nats; "
-                f"{metrics.get('surprised_steps', 0)} step(s) above {SURPRISE_WARNING:g} "
-                "(badly explained observations: README 'Tracking health')",
+                f"largest surprise {metrics['surprise_nats_peak']:.1f} nats, "
+                f"{metrics.get('surprised_steps', 0)} step(s) above the "
+                f"{SURPRISE_WARNING:g}-nat warning (README 'Tracking health')",
             )
         )
     width = max(len(k) for k, _ in rows)
