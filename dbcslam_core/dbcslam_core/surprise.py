@@ -31,7 +31,7 @@ MIN_REFERENCE_STEPS = 5
 #: (`python -m dbcslam_research.tracking_health`, README "Tracking health"): at the live
 #: particle counts (edge 1000, gripper and push 500, runs 0-9) no step exceeds 7.8 nats, nor
 #: 9.3 on 40 gripper runs at 500 particles with true jaw mu 0.4 / 0.7; the 100-particle edge
-#: runs whose position error reaches 0.9-2.8x the sensor noise exceed it, and every gripper
+#: runs whose position RMSE reaches 0.6-2.0x the sensor noise exceed it, and every gripper
 #: run at true mu 0.1 that ends on a wrong coefficient (7 at 40 particles, 2 at 500) has a
 #: step above 95.
 SURPRISE_WARNING = 10.0
