@@ -627,12 +627,11 @@ def _diagnostics_summary(arr: BagArrays) -> dict[str, Any]:
     times = [float(v["step_time_ms_mean"]) for _, v in arr.diagnostics if "step_time_ms_mean" in v]
     if times:
         out["step_time_ms_mean"] = _round(float(np.mean(times)), 3)
-    peaks = [
-        float(v["surprise_nats_peak"]) for _, v in arr.diagnostics if "surprise_nats_peak" in v
-    ]
-    if peaks:  # counters since start: the last message's are the run's
-        out["surprise_nats_peak"] = _round(peaks[-1], 1)
-        out["surprised_steps"] = int(arr.diagnostics[-1][1].get("surprised_steps", 0))
+    # counters since start: the last message that has them holds the run's
+    health = next((v for _, v in reversed(arr.diagnostics) if "surprise_nats_peak" in v), None)
+    if health is not None:
+        out["surprise_nats_peak"] = _round(float(health["surprise_nats_peak"]), 1)
+        out["surprised_steps"] = int(health.get("surprised_steps", 0))
     if arr.diagnostics:
         out["diagnostics_last"] = arr.diagnostics[-1][1]
     return out

@@ -23,8 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from dbcslam_core.experiments import run_dbcslam
-from dbcslam_core.metrics import position_rmse
+from dbcslam_core.experiments import run_dbcslam, score
 from dbcslam_core.surprise import SURPRISE_WARNING, SurpriseMonitor
 from dbcslam_research.cli import pool_map, settings_dirname
 from dbcslam_research.experiments import command_line, progress_printer, utc_now, write_json
@@ -75,19 +74,18 @@ def run_health(task: tuple[str, int, int, tuple[tuple[str, Any], ...]]) -> dict[
         msg = f"{kind} run {seed}: the trace has no log likelihoods"
         raise RuntimeError(msg)
     s = surprises(trace.log_likelihood.tolist())
-    rmse = position_rmse(trace.est_q[:, :2], trace.true_q[:, :2])  # per axis, as the targets
-    row: dict[str, Any] = {
+    metrics = score(trace)  # the targets' metrics (per-axis RMSE over the noise std)
+    return {
         "scenario": kind,
         "particles": particles,
         "seed": seed,
         "surprise_max": float(s.max()),
         "surprised_steps": int(np.count_nonzero(s > SURPRISE_WARNING)),
-        "position_rmse_over_noise": rmse / float(trace.noise_position),
-        "p_true_final": None,
+        "position_rmse_over_noise": metrics["position_rmse_ratio"],
+        "p_true_final": metrics.get("final_true_friction_posterior")
+        if kind == "gripper"
+        else None,
     }
-    if kind == "gripper":
-        row["p_true_final"] = float(trace.friction_post[-1][trace.true_friction_index])
-    return row
 
 
 def render_markdown(result: dict[str, Any], command: str) -> str:
