@@ -13,7 +13,9 @@ One ``python -m dbcslam_research.<module>`` entry each; every one writes into ``
   analysis on the MIT pushes (evidence per push model and split);
 - ``gripper_evidence``: how much a pybullet grasp says about the jaw friction (per-run
   verdicts of fixed-friction filters); ``friction_calibration``: DBC-SLAM's final friction
-  posterior against those verdicts;
+  posterior against those verdicts; ``gaussian_particles``: the same evidence from
+  particles that carry a Gaussian over pose and twist (a research probe);
+- ``tracking_health``: how surprised the filter is by its observations, per run;
 - ``step_profile``: wall time per phase of the filter step;
 - ``readme_results``: the README's results section from the results folder.
 """
