@@ -53,12 +53,19 @@ import numpy as np
 import numpy.typing as npt
 
 from dbcslam_core.angles import wrap_angle
+from dbcslam_core.contact_modes import Mode
 from dbcslam_core.errors import ModelError
 from dbcslam_core.experiments import DBCSLAM, run_filter, run_fixed_friction
-from dbcslam_core.geometry import contact_coordinates
 from dbcslam_core.observation import LinearObservation, gaussian_log_density
 from dbcslam_core.particles import ParticleSet
-from dbcslam_core.rbpf import DbcSlamFilter, Estimate, FilterConfig, FilterInput
+from dbcslam_core.rbpf import (
+    DbcSlamFilter,
+    Estimate,
+    FilterConfig,
+    FilterInput,
+    _Posterior,
+    _Proposal,
+)
 from dbcslam_core.resampling import effective_sample_size, normalise_log_weights
 from dbcslam_core.synthetic import Trajectory, gripper_trajectory
 from dbcslam_research.cli import pool_map
@@ -367,21 +374,14 @@ class GaussianParticleFilter(DbcSlamFilter):
         return np.broadcast_to(marg[:, None], self.particles.modes.shape).copy()
 
     def _record_map(self, joints: FloatArray) -> None:
-        """Append the step to the friction map's history (as `DbcSlamFilter._move`)."""
+        """Append the step to the friction map's history: `DbcSlamFilter._move` with the
+        particles' own state and beliefs."""
         ps = self.particles
-        w = normalise_log_weights(ps.log_w)[0]
-        s_new = self._contact_coordinates(ps.q, joints)
-        pk = self.n_pairs * self._k_max
-        row = np.empty((ps.count, ps.history.buf.shape[2]))
-        row[:, :pk] = self._pair_marginals(ps.fric).reshape(ps.count, pk)
-        row[:, pk : pk + self.n_c] = s_new
-        row[:, pk + self.n_c :] = 1.0 - ps.modes[:, 0, :, 0]
-        old = ps.history.push(row)
-        if old is not None:
-            self._commit(self.map, old[None], w)
-
-    def _contact_coordinates(self, q: FloatArray, joints: FloatArray) -> FloatArray:
-        return np.asarray(contact_coordinates(self.scenario, q, joints), dtype=np.float64)
+        fric_pair = self._pair_marginals(ps.fric)
+        p_contact = 1.0 - ps.modes[:, 0, :, Mode.SEPARATED]
+        marg = ps.modes[:, 0]
+        post = _Posterior(ps.fric, fric_pair, ps.modes, marg, np.zeros((0,)), p_contact)
+        self._move(_Proposal(np.zeros(ps.count), ps.v, ps.q), post, joints)
 
 
 def _rows(log_p: FloatArray) -> FloatArray:
